@@ -1,0 +1,97 @@
+//! `frustum`: hierarchical view-frustum culling over the kd-tree with plane
+//! masks (Bittner et al. §5.3, the "F" method of their Table 2, and the
+//! reference every other method is compared against).
+//!
+//! Each node's `bounds` (the union of the whole boxes of the objects below
+//! it) is tested against the planes still in the mask. A node outside one
+//! plane is dropped with its subtree; a plane it lies inside is dropped from
+//! the mask for its subtree; a node inside every plane has all its objects
+//! accepted untested. Because a plane test is monotone in the box (see
+//! [`crate::geom::Plane::classify`]), this returns *exactly* the objects whose
+//! own box passes [`Frustum::intersects`], the brute-force answer
+//! [`FrustumCulling::reference`] gives.
+
+use std::sync::Arc;
+
+use crate::cull::{CullCounters, CullMethod, MethodError, MethodOptions, View, VisibleSet};
+use crate::geom::{ALL_PLANES, Frustum, PlaneMask, Side};
+use crate::scene::Scene;
+use crate::spatial::{KdTree, NodeKind};
+
+/// Hierarchical frustum culling; stateless, conservative, no options.
+pub struct FrustumCulling {
+    scene: Arc<Scene>,
+    tree: Arc<KdTree>,
+}
+
+impl FrustumCulling {
+    /// The method over `tree`, which must be built over `scene`.
+    pub fn new(scene: Arc<Scene>, tree: Arc<KdTree>) -> Self {
+        FrustumCulling { scene, tree }
+    }
+
+    /// Brute force: every object whose own box passes [`Frustum::intersects`],
+    /// ascending. Tests compare the hierarchical answer with it.
+    pub fn reference(scene: &Scene, frustum: &Frustum) -> Vec<u32> {
+        scene
+            .objects()
+            .iter()
+            .filter(|o| frustum.intersects(&o.bounds))
+            .map(|o| o.id)
+            .collect()
+    }
+}
+
+impl CullMethod for FrustumCulling {
+    type State = ();
+
+    fn name(&self) -> &'static str {
+        "frustum"
+    }
+
+    fn new_state(&self, options: &MethodOptions) -> Result<(), MethodError> {
+        options.reader("frustum", &[]).finish()
+    }
+
+    fn is_conservative(&self, _: &()) -> bool {
+        true
+    }
+
+    fn cull(&self, view: &View, _: &mut (), out: &mut VisibleSet) -> CullCounters {
+        let nodes = self.tree.nodes();
+        let objects = self.scene.objects();
+        let mut tested = 0u64;
+        if nodes.is_empty() {
+            return CullCounters::default();
+        }
+        // Depth is bounded by the build's limit, so the stack stays small.
+        let mut stack: Vec<(u32, PlaneMask)> = Vec::with_capacity(64);
+        stack.push((0, ALL_PLANES));
+        while let Some((i, mask)) = stack.pop() {
+            let node = &nodes[i as usize];
+            tested += 1;
+            let (side, mask) = view.frustum.classify(&node.bounds, mask);
+            match (side, node.kind) {
+                (Side::Outside, _) => {}
+                (Side::Inside, _) => out.extend_from_slice(self.tree.node_refs(node)),
+                (Side::Intersecting, NodeKind::Inner { children, .. }) => {
+                    stack.push((children[1], mask));
+                    stack.push((children[0], mask));
+                }
+                (Side::Intersecting, NodeKind::Leaf) => {
+                    for &id in self.tree.node_refs(node) {
+                        if view.frustum.classify(&objects[id as usize].bounds, mask).0
+                            != Side::Outside
+                        {
+                            out.push(id);
+                        }
+                    }
+                }
+            }
+        }
+        CullCounters {
+            nodes_tested: tested,
+            in_frustum: None,
+        }
+    }
+}

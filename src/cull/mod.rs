@@ -1,0 +1,295 @@
+//! Culling: the one trait every method implements, and the methods.
+//!
+//! A method is built once per scene ([`CullMethod`]) and answers views. Its
+//! per-client temporal state (occluders chosen last frame, node marks, cached
+//! plane relations) is a typed [`CullMethod::State`] that the *caller* keeps
+//! between frames: a session keeps one, a stateless request makes a fresh
+//! one. Callers that do not know the method (the server, eval) go through the
+//! object-safe [`Culler`], which every `CullMethod` is, and hold the state as
+//! an opaque [`ClientCache`].
+//!
+//! **Invariant:** culling never mutates a scene; a conservative method never
+//! drops an object whose box-and-triangles could show a pixel.
+
+pub mod frustum;
+mod spec;
+
+use std::any::Any;
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::DVec3;
+
+pub use spec::{METHOD_NAMES, MethodError, MethodOptions, MethodSpec, OptionReader};
+
+use crate::geom::{Camera, CameraError, Frustum};
+use crate::scene::Scene;
+use crate::spatial::{KdTree, KdTreeParams};
+
+/// A validated camera, with its frustum in the scene's local coordinates.
+#[derive(Clone, Copy, Debug)]
+pub struct View {
+    /// The camera as the client sent it (world coordinates).
+    pub camera: Camera,
+    /// Its frustum, relative to the scene origin.
+    pub frustum: Frustum,
+    /// The eye relative to the scene origin, in `f64`.
+    pub eye: DVec3,
+}
+
+impl View {
+    /// Validates `camera` and sets it up relative to `scene`'s origin.
+    pub fn new(camera: Camera, scene: &Scene) -> Result<View, CameraError> {
+        let frustum = Frustum::from_camera(&camera, scene.origin)?;
+        Ok(View {
+            camera,
+            frustum,
+            eye: camera.eye - scene.origin,
+        })
+    }
+}
+
+/// The ids a method found possibly visible; sorted ascending once finished.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct VisibleSet {
+    ids: Vec<u32>,
+}
+
+impl VisibleSet {
+    /// An empty set.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Empties the set, keeping its allocation for the next frame.
+    pub fn clear(&mut self) {
+        self.ids.clear();
+    }
+
+    /// Adds an id (repeats are removed by [`VisibleSet::finish`]).
+    pub fn push(&mut self, id: u32) {
+        self.ids.push(id);
+    }
+
+    /// Adds ids (repeats are removed by [`VisibleSet::finish`]).
+    pub fn extend_from_slice(&mut self, ids: &[u32]) {
+        self.ids.extend_from_slice(ids);
+    }
+
+    /// Sorts and removes repeats: an object held by two kd leaves is reported once.
+    pub fn finish(&mut self) {
+        self.ids.sort_unstable();
+        self.ids.dedup();
+    }
+
+    /// The ids (sorted once finished).
+    pub fn ids(&self) -> &[u32] {
+        &self.ids
+    }
+
+    /// How many ids.
+    pub fn len(&self) -> usize {
+        self.ids.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+}
+
+/// What a method counted while culling one view.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CullCounters {
+    /// Hierarchy nodes whose box was tested.
+    pub nodes_tested: u64,
+    /// Objects inside the frustum, when the method knows it apart from its
+    /// answer; `None` when its answer *is* the in-frustum set.
+    pub in_frustum: Option<u64>,
+}
+
+/// What one culled view cost and found (DESIGN: the answer's `stats`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CullStats {
+    /// The method that answered (`auto` resolved to a real one).
+    pub method: &'static str,
+    /// Wall time of the cull, microseconds, including sorting the answer.
+    pub cull_us: f64,
+    /// Hierarchy nodes tested.
+    pub nodes_tested: u64,
+    /// Objects inside the frustum.
+    pub in_frustum: u64,
+    /// Objects in the answer.
+    pub visible: u64,
+}
+
+/// A culling method built for one scene. Implement this; call [`Culler`].
+pub trait CullMethod: Send + Sync + 'static {
+    /// Per-client state: the options it was made with and whatever the
+    /// method carries from frame to frame.
+    type State: Send + 'static;
+
+    /// The method's name, one of [`METHOD_NAMES`].
+    fn name(&self) -> &'static str;
+
+    /// A fresh state for a client, from the request's options; unknown or
+    /// invalid options are refused by name.
+    fn new_state(&self, options: &MethodOptions) -> Result<Self::State, MethodError>;
+
+    /// Whether, with this state's options, the method never drops a visible object.
+    fn is_conservative(&self, state: &Self::State) -> bool;
+
+    /// Adds the possibly visible objects of `view` to `out` (in any order, repeats allowed).
+    fn cull(&self, view: &View, state: &mut Self::State, out: &mut VisibleSet) -> CullCounters;
+}
+
+/// A client's state for one method, opaque to everyone but that method.
+pub struct ClientCache {
+    method: &'static str,
+    conservative: bool,
+    state: Box<dyn Any + Send>,
+}
+
+impl ClientCache {
+    /// The method whose state this is.
+    pub fn method(&self) -> &'static str {
+        self.method
+    }
+
+    /// Whether the method, with these options, is conservative.
+    pub fn is_conservative(&self) -> bool {
+        self.conservative
+    }
+}
+
+impl std::fmt::Debug for ClientCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ClientCache")
+            .field("method", &self.method)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The object-safe face of every [`CullMethod`]: what the server and eval use.
+pub trait Culler: Send + Sync {
+    /// The method's name.
+    fn name(&self) -> &'static str;
+    /// A fresh client cache for these options.
+    fn new_cache(&self, options: &MethodOptions) -> Result<ClientCache, MethodError>;
+    /// Culls `view` into `out` (cleared first, sorted after) with the client's cache.
+    ///
+    /// # Panics
+    /// When `cache` was made by another method: a caller bug, not bad input.
+    fn cull(&self, view: &View, cache: &mut ClientCache, out: &mut VisibleSet) -> CullStats;
+}
+
+impl<M: CullMethod> Culler for M {
+    fn name(&self) -> &'static str {
+        CullMethod::name(self)
+    }
+
+    fn new_cache(&self, options: &MethodOptions) -> Result<ClientCache, MethodError> {
+        let state = self.new_state(options)?;
+        Ok(ClientCache {
+            method: CullMethod::name(self),
+            conservative: self.is_conservative(&state),
+            state: Box::new(state),
+        })
+    }
+
+    fn cull(&self, view: &View, cache: &mut ClientCache, out: &mut VisibleSet) -> CullStats {
+        let state = cache.state.downcast_mut::<M::State>().unwrap_or_else(|| {
+            panic!(
+                "a '{}' cache handed to '{}'",
+                cache.method,
+                CullMethod::name(self)
+            )
+        });
+        out.clear();
+        let start = Instant::now();
+        let counters = CullMethod::cull(self, view, state, out);
+        out.finish();
+        let cull_us = start.elapsed().as_secs_f64() * 1e6;
+        CullStats {
+            method: CullMethod::name(self),
+            cull_us,
+            nodes_tested: counters.nodes_tested,
+            in_frustum: counters.in_frustum.unwrap_or(out.len() as u64),
+            visible: out.len() as u64,
+        }
+    }
+}
+
+/// A scene with the methods it supports, ready to answer views.
+///
+/// Built once per scene at load; everything in it is read-only afterwards
+/// and shared between requests.
+pub struct SceneMethods {
+    scene: Arc<Scene>,
+    methods: Vec<Arc<dyn Culler>>,
+}
+
+impl SceneMethods {
+    /// Prepares what `scene`'s methods need and nothing more.
+    pub fn prepare(scene: Arc<Scene>) -> SceneMethods {
+        let tree = Arc::new(KdTree::build(&scene, KdTreeParams::default()));
+        let methods: Vec<Arc<dyn Culler>> =
+            vec![Arc::new(frustum::FrustumCulling::new(scene.clone(), tree))];
+        SceneMethods { scene, methods }
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Arc<Scene> {
+        &self.scene
+    }
+
+    /// Names of the methods this scene supports, best first (`auto` excluded).
+    pub fn names(&self) -> Vec<&'static str> {
+        self.methods.iter().map(|m| m.name()).collect()
+    }
+
+    /// The method called `name`; `auto` is the best this scene supports.
+    pub fn get(&self, name: &str) -> Result<&Arc<dyn Culler>, MethodError> {
+        if name == "auto" {
+            return Ok(&self.methods[0]);
+        }
+        if let Some(m) = self.methods.iter().find(|m| m.name() == name) {
+            return Ok(m);
+        }
+        if METHOD_NAMES.contains(&name) {
+            Err(MethodError::Unsupported {
+                name: name.into(),
+                scene: self.scene.id.clone(),
+                supported: self
+                    .names()
+                    .into_iter()
+                    .map(String::from)
+                    .chain(["auto".to_string()])
+                    .collect(),
+            })
+        } else {
+            Err(MethodError::Unknown { name: name.into() })
+        }
+    }
+
+    /// Resolves a spec to its method and a fresh client cache.
+    pub fn prepare_client(
+        &self,
+        spec: &MethodSpec,
+    ) -> Result<(Arc<dyn Culler>, ClientCache), MethodError> {
+        let method = self.get(&spec.name)?;
+        let cache = method.new_cache(&spec.options)?;
+        Ok((method.clone(), cache))
+    }
+
+    /// One stateless answer: a fresh cache, one view.
+    pub fn cull_once(
+        &self,
+        spec: &MethodSpec,
+        view: &View,
+        out: &mut VisibleSet,
+    ) -> Result<CullStats, MethodError> {
+        let (method, mut cache) = self.prepare_client(spec)?;
+        Ok(method.cull(view, &mut cache, out))
+    }
+}

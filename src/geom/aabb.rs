@@ -1,0 +1,154 @@
+//! Axis-aligned bounding boxes in scene-local `f32` coordinates.
+//!
+//! Boxes are the currency of every culling method: objects, kd-tree cells and
+//! the subtree bounds of Bittner et al. §2.2 are all `Aabb`s.
+
+use glam::Vec3;
+
+/// An axis-aligned box `[min, max]`, closed on both sides.
+///
+/// A box with `min > max` on any axis is *empty*: it contains no point and
+/// intersects nothing. [`Aabb::EMPTY`] is the identity of [`Aabb::merge`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// Smallest corner.
+    pub min: Vec3,
+    /// Largest corner.
+    pub max: Vec3,
+}
+
+impl Aabb {
+    /// The empty box to start merges from (`min = +∞`, `max = −∞`).
+    pub const EMPTY: Aabb = Aabb {
+        min: Vec3::splat(f32::INFINITY),
+        max: Vec3::splat(f32::NEG_INFINITY),
+    };
+
+    /// The box with the given corners (not reordered).
+    pub const fn new(min: Vec3, max: Vec3) -> Self {
+        Aabb { min, max }
+    }
+
+    /// The smallest box holding every point of `points` (empty for none).
+    pub fn from_points(points: impl IntoIterator<Item = Vec3>) -> Self {
+        let mut b = Aabb::EMPTY;
+        for p in points {
+            b.grow(p);
+        }
+        b
+    }
+
+    /// Whether the box holds no point.
+    pub fn is_empty(&self) -> bool {
+        !(self.min.x <= self.max.x && self.min.y <= self.max.y && self.min.z <= self.max.z)
+    }
+
+    /// Grows the box in place to hold `p`.
+    pub fn grow(&mut self, p: Vec3) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+
+    /// Grows the box in place to hold `other`.
+    pub fn merge(&mut self, other: &Aabb) {
+        self.min = self.min.min(other.min);
+        self.max = self.max.max(other.max);
+    }
+
+    /// The smallest box holding both `self` and `other`.
+    pub fn merged(&self, other: &Aabb) -> Aabb {
+        let mut b = *self;
+        b.merge(other);
+        b
+    }
+
+    /// Whether `other` lies inside `self` (an empty `other` always does).
+    pub fn contains(&self, other: &Aabb) -> bool {
+        other.is_empty() || (self.min.cmple(other.min).all() && other.max.cmple(self.max).all())
+    }
+
+    /// Whether the point lies in the closed box.
+    pub fn contains_point(&self, p: Vec3) -> bool {
+        self.min.cmple(p).all() && p.cmple(self.max).all()
+    }
+
+    /// Whether the two closed boxes share a point.
+    pub fn intersects(&self, other: &Aabb) -> bool {
+        self.min.cmple(other.max).all() && other.min.cmple(self.max).all()
+    }
+
+    /// The centre point (meaningless for an empty box).
+    pub fn center(&self) -> Vec3 {
+        (self.min + self.max) * 0.5
+    }
+
+    /// The side lengths (negative for an empty box).
+    pub fn extent(&self) -> Vec3 {
+        self.max - self.min
+    }
+
+    /// The index (0 = x, 1 = y, 2 = z) of the longest side; ties pick the lower axis.
+    pub fn longest_axis(&self) -> usize {
+        let e = self.extent();
+        if e.x >= e.y && e.x >= e.z {
+            0
+        } else if e.y >= e.z {
+            1
+        } else {
+            2
+        }
+    }
+
+    /// The eight corners, in the order of the bits of their index (bit 0 = x max, bit 1 = y max, bit 2 = z max).
+    pub fn corners(&self) -> [Vec3; 8] {
+        std::array::from_fn(|i| {
+            Vec3::new(
+                if i & 1 == 0 { self.min.x } else { self.max.x },
+                if i & 2 == 0 { self.min.y } else { self.max.y },
+                if i & 4 == 0 { self.min.z } else { self.max.z },
+            )
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_is_identity_of_merge_and_intersects_nothing() {
+        let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        assert_eq!(Aabb::EMPTY.merged(&b), b);
+        assert!(Aabb::EMPTY.is_empty());
+        assert!(!Aabb::EMPTY.intersects(&b));
+        assert!(b.contains(&Aabb::EMPTY));
+        assert!(Aabb::from_points([]).is_empty());
+    }
+
+    #[test]
+    fn touching_boxes_intersect_because_they_are_closed() {
+        let a = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let b = Aabb::new(Vec3::new(1.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0));
+        assert!(a.intersects(&b));
+        let c = Aabb::new(Vec3::new(1.001, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0));
+        assert!(!a.intersects(&c));
+    }
+
+    #[test]
+    fn degenerate_point_box_is_not_empty() {
+        let p = Aabb::from_points([Vec3::splat(3.0)]);
+        assert!(!p.is_empty());
+        assert!(p.contains_point(Vec3::splat(3.0)));
+        assert_eq!(p.extent(), Vec3::ZERO);
+    }
+
+    #[test]
+    fn corners_follow_index_bits() {
+        let b = Aabb::new(Vec3::ZERO, Vec3::new(1.0, 2.0, 3.0));
+        let c = b.corners();
+        assert_eq!(c[0], Vec3::ZERO);
+        assert_eq!(c[7], Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(c[5], Vec3::new(1.0, 0.0, 3.0));
+        assert_eq!(b.longest_axis(), 2);
+    }
+}

@@ -1,0 +1,17 @@
+//! Geometry: boxes, planes, cameras, frusta and convex polygons.
+//!
+//! Scene data is `f32` relative to a scene origin; everything a camera
+//! produces (planes, frusta) is `f64`, so precision is lost neither far from
+//! the world origin nor at extreme near/far ratios.
+
+mod aabb;
+mod camera;
+mod frustum;
+mod plane;
+mod polygon;
+
+pub use aabb::Aabb;
+pub use camera::{Camera, CameraBasis, CameraError, PARALLEL_TOLERANCE};
+pub use frustum::{ALL_PLANES, Frustum, PlaneMask};
+pub use plane::{Plane, Side};
+pub use polygon::{ConvexPolygon, Split};

@@ -1,0 +1,16 @@
+//! pvsd: a visibility server.
+//!
+//! # Layout
+//! Data flows one way, top to bottom:
+//! - [`geom`]: boxes, planes, cameras, frusta, convex polygons.
+//! - [`scene`]: the scene model, the glTF loader and writer, generators.
+//! - [`spatial`]: the kd-tree over a scene's objects.
+//! - [`cull`]: the one trait every culling method implements, and the methods.
+//! - [`server`]: the HTTP service (axum): routes, scene registry, metrics.
+//!
+//! `docs/ARCHITECTURE.md` is the map: the flow of a request and the invariants.
+
+pub mod cull;
+pub mod geom;
+pub mod scene;
+pub mod spatial;

@@ -1,0 +1,311 @@
+//! Loading glTF 2.0 files (`.gltf` with its buffers, or `.glb`) into a [`Scene`].
+//!
+//! The node hierarchy of the default scene is flattened in a pre-order
+//! depth-first walk of its root nodes and their children, in file order; each
+//! mesh-bearing node instance met becomes the next object (DESIGN "Scenes"),
+//! so ids are the same on every load and for every tool that reads the file.
+//! Transforms are composed in `f64` so a file placed at 1e7 units keeps its
+//! precision until [`SceneBuilder::finish`] subtracts the scene origin.
+//!
+//! The `gltf` crate parses and validates the JSON. It does not check that an
+//! accessor's bytes lie inside its buffer, and its readers index slices
+//! directly, so every accessor is checked here before it is read: a broken
+//! file is an error naming the file and the problem, never a panic.
+
+use std::path::{Path, PathBuf};
+
+use base64::Engine as _;
+use glam::{DMat4, DVec3};
+use gltf::accessor::{DataType, Dimensions};
+use gltf::mesh::Mode;
+
+use super::{Scene, SceneBuilder};
+
+/// Why a scene file could not be loaded.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {problem}", path.display())]
+pub struct LoadError {
+    /// The file that failed.
+    pub path: PathBuf,
+    /// What is wrong with it.
+    pub problem: String,
+}
+
+/// Loads a `.gltf` or `.glb` file; the scene id is the file stem.
+pub fn load_path(path: &Path) -> Result<Scene, LoadError> {
+    let fail = |problem: String| LoadError {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let bytes = std::fs::read(path).map_err(|e| fail(format!("cannot read file: {e}")))?;
+    let id = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .ok_or_else(|| fail("file name is not valid UTF-8".into()))?;
+    load_slice(id, &bytes, path.parent(), path)
+}
+
+/// Loads a scene from the bytes of a `.gltf` or `.glb` file.
+///
+/// `base_dir` resolves external buffer URIs (none for in-memory data);
+/// `path` is only used to name the source in errors.
+pub fn load_slice(
+    id: &str,
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    path: &Path,
+) -> Result<Scene, LoadError> {
+    let fail = |problem: String| LoadError {
+        path: path.to_path_buf(),
+        problem,
+    };
+    let gltf =
+        gltf::Gltf::from_slice(bytes).map_err(|e| fail(format!("not a valid glTF file: {e}")))?;
+    let buffers = load_buffers(&gltf, base_dir).map_err(fail)?;
+    let scene = gltf
+        .document
+        .default_scene()
+        .or_else(|| gltf.document.scenes().next())
+        .ok_or_else(|| fail("the file has no scene".into()))?;
+    let mut builder = SceneBuilder::new(id);
+    let mut path_stack = Vec::new();
+    for root in scene.nodes() {
+        visit(
+            &root,
+            DMat4::IDENTITY,
+            &buffers,
+            &mut builder,
+            &mut path_stack,
+        )
+        .map_err(fail)?;
+    }
+    Ok(builder.finish())
+}
+
+fn load_buffers(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<Vec<Vec<u8>>, String> {
+    let mut out = Vec::new();
+    for buffer in gltf.document.buffers() {
+        let data = match buffer.source() {
+            gltf::buffer::Source::Bin => gltf.blob.clone().ok_or_else(|| {
+                format!(
+                    "buffer {} refers to a GLB binary chunk that is missing",
+                    buffer.index()
+                )
+            })?,
+            gltf::buffer::Source::Uri(uri) => read_uri(uri, base_dir)
+                .map_err(|e| format!("buffer {} ('{}'): {e}", buffer.index(), short(uri)))?,
+        };
+        if data.len() < buffer.length() {
+            return Err(format!(
+                "buffer {} has {} bytes, but the file declares byteLength {}",
+                buffer.index(),
+                data.len(),
+                buffer.length()
+            ));
+        }
+        out.push(data);
+    }
+    Ok(out)
+}
+
+fn short(uri: &str) -> &str {
+    if uri.len() > 40 {
+        &uri[..uri.char_indices().nth(40).map_or(uri.len(), |(i, _)| i)]
+    } else {
+        uri
+    }
+}
+
+fn read_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, String> {
+    if let Some(rest) = uri.strip_prefix("data:") {
+        let (_, payload) = rest
+            .split_once(";base64,")
+            .ok_or("only base64 data URIs are supported")?;
+        return base64::engine::general_purpose::STANDARD
+            .decode(payload)
+            .map_err(|e| format!("bad base64: {e}"));
+    }
+    if uri.contains("://") {
+        return Err("only relative file paths and data URIs are supported".into());
+    }
+    let dir = base_dir.ok_or("an external buffer cannot be resolved for in-memory data")?;
+    std::fs::read(dir.join(uri)).map_err(|e| format!("cannot read: {e}"))
+}
+
+fn visit(
+    node: &gltf::Node<'_>,
+    parent: DMat4,
+    buffers: &[Vec<u8>],
+    builder: &mut SceneBuilder,
+    path_stack: &mut Vec<usize>,
+) -> Result<(), String> {
+    if path_stack.contains(&node.index()) {
+        return Err(format!(
+            "node {} is its own ancestor (the hierarchy has a cycle)",
+            node.index()
+        ));
+    }
+    let local = node.transform().matrix().map(|c| c.map(f64::from));
+    let world = parent * DMat4::from_cols_array_2d(&local);
+    if !world.is_finite() {
+        return Err(format!(
+            "node {} has a transform that is not finite",
+            node.index()
+        ));
+    }
+    if let Some(mesh) = node.mesh() {
+        let name = node
+            .name()
+            .or(mesh.name())
+            .map(str::to_owned)
+            .unwrap_or_else(|| format!("object_{}", builder.object_count()));
+        builder.begin_object(name, occluder_hint(node));
+        for prim in mesh.primitives() {
+            let tris = read_triangles(&prim, buffers, &world)
+                .map_err(|e| format!("mesh {} primitive {}: {e}", mesh.index(), prim.index()))?;
+            builder.add_triangles(tris, is_see_through(&prim.material()));
+        }
+    }
+    path_stack.push(node.index());
+    for child in node.children() {
+        visit(&child, world, buffers, builder, path_stack)?;
+    }
+    path_stack.pop();
+    Ok(())
+}
+
+/// `extras.occluder` as written by `pvsd gen` (and any tool that follows it).
+fn occluder_hint(node: &gltf::Node<'_>) -> Option<bool> {
+    let raw = node.extras().as_ref()?;
+    let v: serde_json::Value = serde_json::from_str(raw.get()).ok()?;
+    v.get("occluder")?.as_bool()
+}
+
+/// DESIGN: `BLEND` or `MASK` alpha, or any transmission, makes a surface see-through.
+fn is_see_through(material: &gltf::Material<'_>) -> bool {
+    matches!(
+        material.alpha_mode(),
+        gltf::material::AlphaMode::Blend | gltf::material::AlphaMode::Mask
+    ) || material
+        .transmission()
+        .is_some_and(|t| t.transmission_factor() > 0.0 || t.transmission_texture().is_some())
+}
+
+fn read_triangles(
+    prim: &gltf::Primitive<'_>,
+    buffers: &[Vec<u8>],
+    world: &DMat4,
+) -> Result<Vec<[DVec3; 3]>, String> {
+    let mode = prim.mode();
+    if !matches!(
+        mode,
+        Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+    ) {
+        tracing::warn!(?mode, "skipping a primitive that is not made of triangles");
+        return Ok(Vec::new());
+    }
+    let pos = prim
+        .get(&gltf::Semantic::Positions)
+        .ok_or("has no POSITION attribute")?;
+    if pos.data_type() != DataType::F32 || pos.dimensions() != Dimensions::Vec3 {
+        return Err("POSITION must be float VEC3".into());
+    }
+    check_accessor(&pos, buffers).map_err(|e| format!("POSITION accessor {}: {e}", pos.index()))?;
+    if let Some(ix) = prim.indices() {
+        if !matches!(ix.data_type(), DataType::U8 | DataType::U16 | DataType::U32)
+            || ix.dimensions() != Dimensions::Scalar
+        {
+            return Err("indices must be unsigned integer scalars".into());
+        }
+        check_accessor(&ix, buffers).map_err(|e| format!("index accessor {}: {e}", ix.index()))?;
+    }
+    let reader = prim.reader(|b| buffers.get(b.index()).map(Vec::as_slice));
+    let positions: Vec<DVec3> = reader
+        .read_positions()
+        .ok_or("POSITION cannot be read")?
+        .map(|p| world.transform_point3(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)))
+        .collect();
+    if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
+        return Err(format!("vertex {i} is not finite"));
+    }
+    let indices: Vec<u32> = match reader.read_indices() {
+        Some(ix) => ix.into_u32().collect(),
+        None => (0..positions.len() as u32).collect(),
+    };
+    if let Some(&bad) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+        return Err(format!(
+            "index {bad} is out of range for {} vertices",
+            positions.len()
+        ));
+    }
+    let corner = |i: u32| positions[i as usize];
+    let tris = match mode {
+        Mode::Triangles => indices
+            .chunks_exact(3)
+            .map(|c| [corner(c[0]), corner(c[1]), corner(c[2])])
+            .collect(),
+        Mode::TriangleStrip => indices
+            .windows(3)
+            .enumerate()
+            .map(|(k, w)| {
+                if k % 2 == 0 {
+                    [corner(w[0]), corner(w[1]), corner(w[2])]
+                } else {
+                    [corner(w[1]), corner(w[0]), corner(w[2])]
+                }
+            })
+            .collect(),
+        _ => match indices.split_first() {
+            Some((&hub, rest)) => rest
+                .windows(2)
+                .map(|w| [corner(hub), corner(w[0]), corner(w[1])])
+                .collect(),
+            None => Vec::new(),
+        },
+    };
+    Ok(tris)
+}
+
+/// Checks that every element of the accessor lies inside its view and buffer.
+fn check_accessor(a: &gltf::Accessor<'_>, buffers: &[Vec<u8>]) -> Result<(), String> {
+    if a.sparse().is_some() {
+        return Err("sparse accessors are not supported".into());
+    }
+    let view = a.view().ok_or("has no buffer view")?;
+    let buffer = buffers
+        .get(view.buffer().index())
+        .ok_or("refers to a missing buffer")?;
+    let elem = a.size();
+    let stride = view.stride().unwrap_or(elem);
+    if stride < elem {
+        return Err(format!(
+            "byteStride {stride} is smaller than an element ({elem} bytes)"
+        ));
+    }
+    let view_end = view
+        .offset()
+        .checked_add(view.length())
+        .filter(|&e| e <= buffer.len())
+        .ok_or_else(|| {
+            format!(
+                "buffer view {} runs past the end of its buffer",
+                view.index()
+            )
+        })?;
+    if a.count() == 0 {
+        return Ok(());
+    }
+    let last = (a.count() - 1)
+        .checked_mul(stride)
+        .and_then(|n| n.checked_add(view.offset() + a.offset() + elem))
+        .ok_or("size overflows")?;
+    if last > view_end {
+        return Err(format!(
+            "{} elements run past the end of buffer view {} ({} bytes)",
+            a.count(),
+            view.index(),
+            view.length()
+        ));
+    }
+    Ok(())
+}

@@ -1,0 +1,12 @@
+//! Scenes: the in-memory model, the glTF loader and writer, and generators.
+//!
+//! A scene is a flat list of objects (one per mesh-bearing node instance)
+//! with stable ids, boxes and triangles; see [`Scene`].
+
+pub mod generate;
+pub mod glb;
+mod loader;
+mod model;
+
+pub use loader::{LoadError, load_path, load_slice};
+pub use model::{Object, Scene, SceneBuilder};

@@ -1,0 +1,366 @@
+//! The kd-tree of Bittner et al. §2.2 over a scene's object boxes.
+//!
+//! Each node splits the longest axis of its cell. Candidate planes are the
+//! object-box boundaries within a window around the cell's spatial median;
+//! the one that splits the fewest objects wins (ties: the one nearest the
+//! median). With no candidate, the median itself splits. Objects straddling
+//! the plane are referenced from both sides. Recursion stops at a leaf size,
+//! a depth limit, or when a split would separate nothing.
+//!
+//! Besides its cell, every node keeps `bounds`: the union of the *whole*
+//! boxes of the objects referenced below it. Cells give the spatial order
+//! later methods traverse in; `bounds` makes box tests on a node exactly as
+//! strict as the same test on each object below it (see `cull::frustum`).
+
+use std::ops::Range;
+
+use crate::geom::Aabb;
+use crate::scene::Scene;
+
+/// Build limits of a [`KdTree`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KdTreeParams {
+    /// A node with this many objects or fewer becomes a leaf.
+    pub max_leaf_objects: usize,
+    /// No node is deeper than this.
+    pub max_depth: u32,
+    /// Width of the candidate window around the spatial median, as a share
+    /// of the cell's extent on the split axis (0.25: median ± 12.5%).
+    pub median_window: f32,
+}
+
+impl Default for KdTreeParams {
+    fn default() -> Self {
+        KdTreeParams {
+            max_leaf_objects: 4,
+            max_depth: 32,
+            median_window: 0.25,
+        }
+    }
+}
+
+/// Whether a node is a leaf or how it splits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum NodeKind {
+    /// A leaf: its objects are `KdTree::refs()[node.refs]`.
+    Leaf,
+    /// An inner node split at `axis = split`; `children[0]` is below the plane.
+    Inner {
+        /// 0 = x, 1 = y, 2 = z.
+        axis: u8,
+        /// Coordinate of the splitting plane.
+        split: f32,
+        /// Node indices of the lower and upper child.
+        children: [u32; 2],
+    },
+}
+
+/// One node of the tree.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KdNode {
+    /// The region of space this node partitions (children partition it exactly).
+    pub cell: Aabb,
+    /// Union of the whole boxes of every object referenced below.
+    pub bounds: Aabb,
+    /// Node cost (§5.3): triangles of the distinct objects below.
+    pub cost: u64,
+    /// Object references of every leaf below, contiguous in `KdTree::refs()`;
+    /// an object straddling a split appears once per leaf that holds it.
+    pub refs: Range<u32>,
+    /// Leaf or split.
+    pub kind: NodeKind,
+}
+
+/// A kd-tree over the objects of one scene. Node 0 is the root.
+#[derive(Clone, Debug)]
+pub struct KdTree {
+    nodes: Vec<KdNode>,
+    refs: Vec<u32>,
+    params: KdTreeParams,
+}
+
+impl KdTree {
+    /// Builds the tree over every object with a non-empty box.
+    pub fn build(scene: &Scene, params: KdTreeParams) -> KdTree {
+        let objects = scene.objects();
+        let items: Vec<u32> = objects
+            .iter()
+            .filter(|o| !o.bounds.is_empty())
+            .map(|o| o.id)
+            .collect();
+        let mut b = Builder {
+            boxes: objects.iter().map(|o| o.bounds).collect(),
+            costs: objects.iter().map(|o| o.triangle_count() as u64).collect(),
+            params,
+            nodes: Vec::new(),
+            refs: Vec::new(),
+        };
+        let cell = items
+            .iter()
+            .fold(Aabb::EMPTY, |acc, &i| acc.merged(&b.boxes[i as usize]));
+        if !items.is_empty() {
+            b.build(cell, items, 0);
+        }
+        KdTree {
+            nodes: b.nodes,
+            refs: b.refs,
+            params,
+        }
+    }
+
+    /// Every node; index 0 is the root (absent for a scene with no geometry).
+    pub fn nodes(&self) -> &[KdNode] {
+        &self.nodes
+    }
+
+    /// The root node, `None` for a scene with no geometry.
+    pub fn root(&self) -> Option<&KdNode> {
+        self.nodes.first()
+    }
+
+    /// Object references of the leaves, in depth-first order.
+    pub fn refs(&self) -> &[u32] {
+        &self.refs
+    }
+
+    /// The object ids a node's range of references points at (with repeats).
+    pub fn node_refs(&self, node: &KdNode) -> &[u32] {
+        &self.refs[node.refs.start as usize..node.refs.end as usize]
+    }
+
+    /// The limits the tree was built with.
+    pub fn params(&self) -> KdTreeParams {
+        self.params
+    }
+
+    /// Checks every structural invariant; tests call it after each build.
+    ///
+    /// Children partition their parent's cell at the split; `bounds` hold
+    /// the boxes of every object referenced below and `cost` their triangles;
+    /// reference ranges nest; every object with a box is reachable, and
+    /// every leaf its box reaches (by the build's own distribution rule)
+    /// references it; leaves respect the limits unless nothing could split.
+    pub fn validate(&self, scene: &Scene) -> Result<(), String> {
+        let objects = scene.objects();
+        let Some(root) = self.root() else {
+            return match objects.iter().find(|o| !o.bounds.is_empty()) {
+                Some(o) => Err(format!("empty tree but object {} has a box", o.id)),
+                None => Ok(()),
+            };
+        };
+        for o in objects.iter().filter(|o| !o.bounds.is_empty()) {
+            if !root.cell.contains(&o.bounds) {
+                return Err(format!("root cell does not hold object {}", o.id));
+            }
+            self.check_reaches(0, o.id, &o.bounds)?;
+        }
+        self.check_node(0, scene, 0)
+    }
+
+    fn check_reaches(&self, node: usize, id: u32, b: &Aabb) -> Result<(), String> {
+        let n = &self.nodes[node];
+        match n.kind {
+            NodeKind::Leaf => {
+                if self.node_refs(n).contains(&id) {
+                    Ok(())
+                } else {
+                    Err(format!(
+                        "leaf {node} does not reference object {id} whose box reaches it"
+                    ))
+                }
+            }
+            NodeKind::Inner {
+                axis,
+                split,
+                children,
+            } => {
+                let (lo, hi) = (b.min[axis as usize], b.max[axis as usize]);
+                if goes_low(lo, split) {
+                    self.check_reaches(children[0] as usize, id, b)?;
+                }
+                if goes_high(hi, lo, split) {
+                    self.check_reaches(children[1] as usize, id, b)?;
+                }
+                Ok(())
+            }
+        }
+    }
+
+    fn check_node(&self, i: usize, scene: &Scene, depth: u32) -> Result<(), String> {
+        let n = &self.nodes[i];
+        let refs = self.node_refs(n);
+        let mut distinct: Vec<u32> = refs.to_vec();
+        distinct.sort_unstable();
+        distinct.dedup();
+        let bounds = distinct.iter().fold(Aabb::EMPTY, |a, &o| {
+            a.merged(&scene.objects()[o as usize].bounds)
+        });
+        if bounds != n.bounds {
+            return Err(format!(
+                "node {i}: bounds {:?} != union of its objects {bounds:?}",
+                n.bounds
+            ));
+        }
+        let cost: u64 = distinct
+            .iter()
+            .map(|&o| scene.objects()[o as usize].triangle_count() as u64)
+            .sum();
+        if cost != n.cost {
+            return Err(format!("node {i}: cost {} != {cost}", n.cost));
+        }
+        if depth > self.params.max_depth {
+            return Err(format!("node {i} is deeper than {}", self.params.max_depth));
+        }
+        match n.kind {
+            NodeKind::Leaf => Ok(()),
+            NodeKind::Inner {
+                axis,
+                split,
+                children,
+            } => {
+                let a = axis as usize;
+                let (l, h) = (
+                    &self.nodes[children[0] as usize],
+                    &self.nodes[children[1] as usize],
+                );
+                let mut lc = n.cell;
+                lc.max[a] = split;
+                let mut hc = n.cell;
+                hc.min[a] = split;
+                if l.cell != lc || h.cell != hc {
+                    return Err(format!(
+                        "node {i}: children do not partition the cell at {split} on axis {a}"
+                    ));
+                }
+                if !(n.cell.min[a] < split && split < n.cell.max[a]) {
+                    return Err(format!("node {i}: split {split} is not inside the cell"));
+                }
+                if l.refs.start != n.refs.start
+                    || l.refs.end != h.refs.start
+                    || h.refs.end != n.refs.end
+                {
+                    return Err(format!(
+                        "node {i}: children's reference ranges do not tile the parent's"
+                    ));
+                }
+                self.check_node(children[0] as usize, scene, depth + 1)?;
+                self.check_node(children[1] as usize, scene, depth + 1)
+            }
+        }
+    }
+}
+
+/// An object whose box starts below the plane belongs to the lower child.
+fn goes_low(lo: f32, split: f32) -> bool {
+    lo < split
+}
+
+/// An object whose box ends above the plane belongs to the upper child; so
+/// does a box lying flat on the plane, so that it is held somewhere.
+fn goes_high(hi: f32, lo: f32, split: f32) -> bool {
+    hi > split || (hi == split && lo == split)
+}
+
+struct Builder {
+    boxes: Vec<Aabb>,
+    costs: Vec<u64>,
+    params: KdTreeParams,
+    nodes: Vec<KdNode>,
+    refs: Vec<u32>,
+}
+
+impl Builder {
+    fn build(&mut self, cell: Aabb, items: Vec<u32>, depth: u32) -> u32 {
+        let index = self.nodes.len() as u32;
+        let bounds = items
+            .iter()
+            .fold(Aabb::EMPTY, |a, &o| a.merged(&self.boxes[o as usize]));
+        let cost = items.iter().map(|&o| self.costs[o as usize]).sum();
+        let start = self.refs.len() as u32;
+        self.nodes.push(KdNode {
+            cell,
+            bounds,
+            cost,
+            refs: start..start,
+            kind: NodeKind::Leaf,
+        });
+        let split = (items.len() > self.params.max_leaf_objects && depth < self.params.max_depth)
+            .then(|| self.choose_split(&cell, &items))
+            .flatten();
+        match split {
+            Some((axis, split, low, high)) => {
+                let (mut lc, mut hc) = (cell, cell);
+                lc.max[axis] = split;
+                hc.min[axis] = split;
+                let l = self.build(lc, low, depth + 1);
+                let h = self.build(hc, high, depth + 1);
+                self.nodes[index as usize].kind = NodeKind::Inner {
+                    axis: axis as u8,
+                    split,
+                    children: [l, h],
+                };
+            }
+            None => self.refs.extend_from_slice(&items),
+        }
+        self.nodes[index as usize].refs = start..self.refs.len() as u32;
+        index
+    }
+
+    /// `(axis, plane, lower objects, upper objects)`, or `None` when no plane
+    /// separates anything (a leaf is better than two copies of the same set).
+    fn choose_split(&self, cell: &Aabb, items: &[u32]) -> Option<(usize, f32, Vec<u32>, Vec<u32>)> {
+        let axis = cell.longest_axis();
+        let (cmin, cmax) = (cell.min[axis], cell.max[axis]);
+        if !(cmax > cmin) {
+            return None;
+        }
+        let median = cmin + (cmax - cmin) * 0.5;
+        let half = (cmax - cmin) * self.params.median_window * 0.5;
+        let (wlo, whi) = (median - half, median + half);
+        let mut los: Vec<f32> = items
+            .iter()
+            .map(|&o| self.boxes[o as usize].min[axis])
+            .collect();
+        let mut his: Vec<f32> = items
+            .iter()
+            .map(|&o| self.boxes[o as usize].max[axis])
+            .collect();
+        los.sort_unstable_by(f32::total_cmp);
+        his.sort_unstable_by(f32::total_cmp);
+        // Objects split by plane p (lo < p < hi) = #(lo < p) − #(hi ≤ p) + #(lo = hi = p);
+        // the last term (boxes lying flat on p) is left out: it only makes
+        // such planes look slightly better, and the count is a heuristic.
+        let split_count = |p: f32| {
+            los.partition_point(|&v| v < p)
+                .saturating_sub(his.partition_point(|&v| v <= p))
+        };
+        let mut best: Option<(usize, f32, f32)> = None; // (split objects, distance to median, plane)
+        for &p in los.iter().chain(his.iter()) {
+            if p < wlo || p > whi || p <= cmin || p >= cmax {
+                continue;
+            }
+            let key = (split_count(p), (p - median).abs());
+            if best.is_none_or(|(c, dist, _)| key.0 < c || (key.0 == c && key.1 < dist)) {
+                best = Some((key.0, key.1, p));
+            }
+        }
+        let plane = best.map_or(median, |(_, _, p)| p);
+        if !(cmin < plane && plane < cmax) {
+            return None;
+        }
+        let (mut low, mut high) = (Vec::new(), Vec::new());
+        for &o in items {
+            let b = &self.boxes[o as usize];
+            if goes_low(b.min[axis], plane) {
+                low.push(o);
+            }
+            if goes_high(b.max[axis], b.min[axis], plane) {
+                high.push(o);
+            }
+        }
+        if low.len() == items.len() && high.len() == items.len() {
+            return None;
+        }
+        Some((axis, plane, low, high))
+    }
+}

@@ -1,0 +1,93 @@
+//! Fixtures shared by the integration tests: the real scenes of
+//! `../shared/scenes`, generated scenes, and random cameras.
+#![allow(dead_code)] // each test binary uses a different part of it
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::DVec3;
+use pvsd::geom::Camera;
+use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
+use pvsd::scene::{Scene, load_path, load_slice};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// `../shared/scenes/<name>/<name>.gltf`; the shared folder sits beside the repo.
+pub fn shared_scene_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/scenes")
+        .join(name)
+        .join(format!("{name}.gltf"))
+}
+
+/// Loads a shared scene; fails the test loudly if `../shared` is missing.
+pub fn shared_scene(name: &str) -> Arc<Scene> {
+    let path = shared_scene_path(name);
+    Arc::new(load_path(&path).unwrap_or_else(|e| panic!("shared scene: {e}")))
+}
+
+/// A generated city, written to glb bytes and loaded back as a user would.
+pub fn city_scene(buildings: u32, seed: u64, offset: [f32; 3]) -> Arc<Scene> {
+    let doc = city(&CityOptions {
+        seed,
+        buildings,
+        offset,
+        ..CityOptions::default()
+    });
+    Arc::new(load_slice("city", &doc.to_glb(), None, Path::new("city.glb")).unwrap())
+}
+
+/// A generated office, written to glb bytes and loaded back.
+pub fn office_scene(seed: u64, offset: [f32; 3]) -> Arc<Scene> {
+    let doc = office(&OfficeOptions {
+        seed,
+        offset,
+        ..OfficeOptions::default()
+    });
+    Arc::new(load_slice("office", &doc.to_glb(), None, Path::new("office.glb")).unwrap())
+}
+
+/// A random camera around `scene`: eye in its world box grown by `margin`
+/// of its size, any direction, fov 20–120°, aspect 0.5–2.5.
+pub fn random_camera(rng: &mut ChaCha8Rng, scene: &Scene, margin: f64) -> Camera {
+    let (lo, hi) = scene.to_world(&scene.bounds());
+    let grow = (hi - lo) * margin;
+    let (lo, hi) = (lo - grow, hi + grow);
+    let eye = DVec3::new(
+        rng.random_range(lo.x..=hi.x),
+        rng.random_range(lo.y..=hi.y),
+        rng.random_range(lo.z..=hi.z),
+    );
+    let forward = random_unit(rng);
+    let mut up = random_unit(rng);
+    while forward.cross(up).length() < 0.1 {
+        up = random_unit(rng);
+    }
+    Camera {
+        eye,
+        forward,
+        up,
+        fov_y_deg: rng.random_range(20.0..120.0),
+        aspect: rng.random_range(0.5..2.5),
+        near: rng.random_range(0.01..1.0),
+        far: rng.random_range(10.0..5000.0),
+        viewport: [640, 480],
+    }
+}
+
+pub fn random_unit(rng: &mut ChaCha8Rng) -> DVec3 {
+    loop {
+        let v = DVec3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        if v.length() > 0.1 && v.length() <= 1.0 {
+            return v.normalize();
+        }
+    }
+}
+
+pub fn rng(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed)
+}

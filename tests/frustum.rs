@@ -1,0 +1,255 @@
+//! `frustum` returns exactly the objects whose boxes pass the frustum test
+//! (hierarchical = brute force), never misses a box that holds a point of the
+//! frustum (checked by sampling, independently of the plane test), and does
+//! so at every numerical extreme of DESIGN.
+
+mod common;
+
+use std::sync::Arc;
+
+use common::{city_scene, office_scene, random_camera, rng, shared_scene};
+use glam::{DVec3, Vec3};
+use pvsd::cull::frustum::FrustumCulling;
+use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::geom::Camera;
+use pvsd::scene::{Scene, SceneBuilder};
+use rand::Rng;
+
+fn cull(methods: &SceneMethods, cam: Camera) -> Vec<u32> {
+    let view = View::new(cam, methods.scene()).unwrap();
+    let mut out = VisibleSet::new();
+    let stats = methods
+        .cull_once(&MethodSpec::named("frustum").unwrap(), &view, &mut out)
+        .unwrap();
+    assert_eq!(stats.visible as usize, out.len());
+    assert!(
+        out.ids().windows(2).all(|w| w[0] < w[1]),
+        "sorted and unique"
+    );
+    out.ids().to_vec()
+}
+
+/// Hierarchical equals brute force, and every sampled frustum point's boxes are in.
+fn check_view(methods: &SceneMethods, cam: Camera, samples: usize, seed: u64) -> Vec<u32> {
+    let scene = methods.scene();
+    let got = cull(methods, cam);
+    let view = View::new(cam, scene).unwrap();
+    assert_eq!(
+        got,
+        FrustumCulling::reference(scene, &view.frustum),
+        "hierarchical != brute force for {cam:?}"
+    );
+    let mut r = rng(seed);
+    let basis = cam.basis().unwrap();
+    let (tx, ty) = cam.half_tangents();
+    let far = cam
+        .far
+        .min(scene.bounds().extent().max_element() as f64 * 4.0 + cam.near);
+    for _ in 0..samples {
+        let z = cam.near + (far - cam.near) * r.random::<f64>();
+        let (sx, sy) = (r.random_range(-1.0..=1.0), r.random_range(-1.0..=1.0));
+        let p =
+            view.eye + basis.forward * z + basis.right * (sx * tx * z) + basis.up * (sy * ty * z);
+        let pf = p.as_vec3();
+        for o in scene.objects() {
+            // Shrink the box by its own f32 rounding so the sample's rounding cannot matter.
+            let slack =
+                Vec3::splat(o.bounds.max.abs().max(o.bounds.min.abs()).max_element() * 1e-6);
+            let shrunk = pvsd::geom::Aabb::new(o.bounds.min + slack, o.bounds.max - slack);
+            if shrunk.contains_point(pf) {
+                assert!(
+                    got.binary_search(&o.id).is_ok(),
+                    "object {} holds frustum point {p} but was culled",
+                    o.id
+                );
+            }
+        }
+    }
+    got
+}
+
+fn prepared(scene: Arc<Scene>) -> SceneMethods {
+    SceneMethods::prepare(scene)
+}
+
+#[test]
+fn equals_brute_force_on_random_views() {
+    for (scene, views) in [
+        (city_scene(1000, 1, [0.0; 3]), 150u32),
+        (office_scene(1, [0.0; 3]), 150),
+        (shared_scene("Sponza"), 100),
+        (shared_scene("2CylinderEngine"), 60),
+    ] {
+        let m = prepared(scene);
+        let mut r = rng(42);
+        let mut nonempty = 0;
+        for i in 0..views {
+            let cam = random_camera(&mut r, m.scene(), 0.2);
+            nonempty += !check_view(&m, cam, 30, i as u64).is_empty() as u32;
+        }
+        assert!(
+            nonempty > views / 4,
+            "{}: the views see something ({nonempty})",
+            m.scene().id
+        );
+    }
+}
+
+#[test]
+fn translated_scenes_give_the_same_answer() {
+    let base = prepared(city_scene(300, 4, [0.0; 3]));
+    for offset in [[1e6f32, 0.0, 1e6], [1e7, 1e7, -1e7]] {
+        let moved = prepared(city_scene(300, 4, offset));
+        // The root node rotates the city, then translates it by `offset`.
+        let shift = DVec3::new(offset[0] as f64, offset[1] as f64, offset[2] as f64);
+        let mut r = rng(9);
+        for i in 0..150 {
+            let cam = random_camera(&mut r, base.scene(), 0.2);
+            let a = check_view(&base, cam, 10, i);
+            let b = check_view(
+                &moved,
+                Camera {
+                    eye: cam.eye + shift,
+                    ..cam
+                },
+                10,
+                i,
+            );
+            assert_eq!(a, b, "offset {offset:?}, view {i}");
+        }
+    }
+}
+
+/// Boxes from 1e-4 to 1e5 units in one scene, some degenerate.
+fn scales_scene() -> Arc<Scene> {
+    let mut b = SceneBuilder::new("scales");
+    let mut r = rng(3);
+    for i in 0..400 {
+        let size = 10f64.powf(r.random_range(-4.0..5.0));
+        let c = DVec3::new(
+            r.random_range(-2e4..2e4),
+            r.random_range(-2e4..2e4),
+            r.random_range(-2e4..2e4),
+        );
+        b.begin_object(format!("o{i}"), None);
+        let tri = match i % 10 {
+            0 => [c, c, c],                                           // a point
+            1 => [c, c + DVec3::X * size, c + DVec3::X * size * 2.0], // zero area, a segment
+            _ => [
+                c,
+                c + DVec3::new(size, 0.0, 0.0),
+                c + DVec3::new(0.0, size, size),
+            ],
+        };
+        b.add_triangles([tri], false);
+    }
+    Arc::new(b.finish())
+}
+
+#[test]
+fn tiny_huge_and_degenerate_objects() {
+    let m = prepared(scales_scene());
+    let mut r = rng(5);
+    for i in 0..200 {
+        let mut cam = random_camera(&mut r, m.scene(), 0.0);
+        cam.far = 1e6;
+        check_view(&m, cam, 20, i);
+    }
+}
+
+fn look(eye: DVec3, forward: DVec3, up: DVec3) -> Camera {
+    Camera {
+        eye,
+        forward,
+        up,
+        ..Camera::default()
+    }
+}
+
+#[test]
+fn extreme_cameras() {
+    let m = prepared(city_scene(500, 6, [0.0; 3]));
+    let s = m.scene().clone();
+    let (lo, hi) = s.to_world(&s.bounds());
+    let mid = (lo + hi) * 0.5 + DVec3::Y * 1.7;
+    let mut cams = vec![
+        Camera {
+            near: 1e-6,
+            far: 1e9,
+            ..look(mid, DVec3::X, DVec3::Y)
+        },
+        Camera {
+            fov_y_deg: 0.01,
+            ..look(mid, DVec3::new(1.0, 0.0, 0.3), DVec3::Y)
+        },
+        Camera {
+            fov_y_deg: 179.0,
+            ..look(mid, DVec3::new(1.0, 0.0, 0.3), DVec3::Y)
+        },
+        Camera {
+            aspect: 0.01,
+            ..look(mid, DVec3::Z, DVec3::Y)
+        },
+        Camera {
+            aspect: 100.0,
+            ..look(mid, DVec3::Z, DVec3::Y)
+        },
+        Camera {
+            fov_y_deg: 179.0,
+            aspect: 100.0,
+            ..look(mid, DVec3::Z, DVec3::Y)
+        },
+        look(mid, DVec3::Y, DVec3::Z),     // straight up
+        look(mid, DVec3::NEG_Y, DVec3::X), // straight down
+        look(
+            DVec3::new(mid.x, hi.y + 100.0, mid.z),
+            DVec3::NEG_Y,
+            DVec3::Z,
+        ), // down from above
+    ];
+    // Eye exactly on the root's split plane, on box corners, inside boxes.
+    let tree = pvsd::spatial::KdTree::build(&s, Default::default());
+    if let pvsd::spatial::NodeKind::Inner { axis, split, .. } = tree.root().unwrap().kind {
+        let mut eye = mid - s.origin;
+        eye[axis as usize] = split as f64;
+        cams.push(look(eye + s.origin, DVec3::X, DVec3::Y));
+    }
+    for o in s.objects().iter().step_by(50) {
+        let corner = s.origin + o.bounds.max.as_dvec3();
+        cams.push(look(corner, DVec3::new(-1.0, -0.2, 0.1), DVec3::Y));
+        let inside = s.origin + o.bounds.center().as_dvec3();
+        let cam = look(inside, DVec3::new(0.3, 0.1, 1.0), DVec3::Y);
+        let got = check_view(&m, cam, 20, o.id as u64);
+        assert!(
+            got.contains(&o.id),
+            "the object around the eye ({}) is seen",
+            o.name
+        );
+    }
+    for (i, cam) in cams.into_iter().enumerate() {
+        check_view(&m, cam, 50, i as u64);
+    }
+}
+
+#[test]
+fn looking_away_sees_nothing_and_from_above_sees_much() {
+    let m = prepared(city_scene(200, 2, [0.0; 3]));
+    let s = m.scene().clone();
+    let (lo, hi) = s.to_world(&s.bounds());
+    let far_away = DVec3::new(hi.x + 1000.0, 2.0, hi.z + 1000.0);
+    assert!(cull(&m, look(far_away, DVec3::new(1.0, 0.0, 1.0), DVec3::Y)).is_empty());
+    let above = DVec3::new((lo.x + hi.x) / 2.0, 3000.0, (lo.z + hi.z) / 2.0);
+    let all = cull(
+        &m,
+        Camera {
+            fov_y_deg: 90.0,
+            aspect: 1.0,
+            ..look(above, DVec3::NEG_Y, DVec3::Z)
+        },
+    );
+    assert_eq!(
+        all.len(),
+        s.objects().len(),
+        "the whole city from high above"
+    );
+}

@@ -1,0 +1,214 @@
+//! The glTF loader on the real scenes of `../shared/scenes` and on broken files.
+
+mod common;
+
+use std::path::Path;
+
+use common::{shared_scene, shared_scene_path};
+use pvsd::scene::{load_path, load_slice};
+
+/// (name, instances, triangles, world bounds min, max) from `../shared/scenes/README.md`.
+const SHARED: [(&str, usize, usize, [f64; 3], [f64; 3]); 3] = [
+    (
+        "2CylinderEngine",
+        67,
+        121_496,
+        [-371.69, -180.97, -140.00],
+        [371.69, 92.04, 128.00],
+    ),
+    (
+        "ReciprocatingSaw",
+        113,
+        198_470,
+        [-298.26, -42.42, -29.52],
+        [76.47, 41.50, 119.23],
+    ),
+    (
+        "Sponza",
+        170,
+        262_087,
+        [-26.84, 2.28, -16.48],
+        [24.18, 23.62, 14.90],
+    ),
+];
+
+#[test]
+fn shared_scenes_have_the_documented_counts_and_bounds() {
+    for (name, objects, triangles, lo, hi) in SHARED {
+        let scene = shared_scene(name);
+        assert_eq!(scene.id, name);
+        assert_eq!(scene.objects().len(), objects, "{name} objects");
+        assert_eq!(scene.triangle_count(), triangles, "{name} triangles");
+        let sum: u32 = scene.objects().iter().map(|o| o.triangle_count()).sum();
+        assert_eq!(sum as usize, triangles);
+        let (wlo, whi) = scene.to_world(&scene.bounds());
+        for k in 0..3 {
+            assert!(
+                (wlo[k] - lo[k]).abs() < 0.01,
+                "{name} min[{k}] {} vs {}",
+                wlo[k],
+                lo[k]
+            );
+            assert!(
+                (whi[k] - hi[k]).abs() < 0.01,
+                "{name} max[{k}] {} vs {}",
+                whi[k],
+                hi[k]
+            );
+        }
+        for (i, o) in scene.objects().iter().enumerate() {
+            assert_eq!(o.id as usize, i);
+            assert!(!o.bounds.is_empty(), "{name} object {i} has triangles");
+        }
+    }
+}
+
+#[test]
+fn ids_are_stable_between_loads() {
+    let a = shared_scene("ReciprocatingSaw");
+    let b = shared_scene("ReciprocatingSaw");
+    let names = |s: &pvsd::scene::Scene| {
+        s.objects()
+            .iter()
+            .map(|o| (o.id, o.name.clone(), o.bounds))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(names(&a), names(&b));
+}
+
+#[test]
+fn sponza_mask_materials_are_see_through() {
+    // README: 23 instances, 34,778 triangles use alphaMode MASK.
+    let s = shared_scene("Sponza");
+    let objects = s
+        .objects()
+        .iter()
+        .filter(|o| !o.see_through.is_empty())
+        .count();
+    let tris: u32 = s
+        .objects()
+        .iter()
+        .flat_map(|o| &o.see_through)
+        .map(|r| r.end - r.start)
+        .sum();
+    assert_eq!(objects, 23);
+    assert_eq!(tris, 34_778);
+}
+
+#[test]
+fn broken_files_are_errors_naming_file_and_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nope.glb");
+    let e = load_path(&missing).unwrap_err().to_string();
+    assert!(e.contains("nope.glb") && e.contains("cannot read"), "{e}");
+
+    let garbage = dir.path().join("garbage.glb");
+    std::fs::write(&garbage, b"this is not a glTF file at all").unwrap();
+    let e = load_path(&garbage).unwrap_err().to_string();
+    assert!(
+        e.contains("garbage.glb") && e.contains("not a valid glTF"),
+        "{e}"
+    );
+
+    // A .gltf whose .bin is shorter than it declares.
+    let src = shared_scene_path("Sponza");
+    let gltf = dir.path().join("Sponza.gltf");
+    std::fs::copy(&src, &gltf).unwrap();
+    let bin = std::fs::read(src.with_file_name("Sponza.bin")).unwrap();
+    std::fs::write(dir.path().join("Sponza.bin"), &bin[..1000]).unwrap();
+    let e = load_path(&gltf).unwrap_err().to_string();
+    assert!(e.contains("Sponza.gltf") && e.contains("byteLength"), "{e}");
+
+    // A missing .bin.
+    std::fs::remove_file(dir.path().join("Sponza.bin")).unwrap();
+    let e = load_path(&gltf).unwrap_err().to_string();
+    assert!(e.contains("Sponza.bin") && e.contains("cannot read"), "{e}");
+}
+
+/// A one-triangle glTF with an embedded buffer, for hand-made broken files.
+fn tiny_gltf(positions: &[[f32; 3]], indices: &[u32], view_len_override: Option<usize>) -> String {
+    use base64::Engine;
+    let mut bin = Vec::new();
+    positions
+        .iter()
+        .flatten()
+        .for_each(|f| bin.extend_from_slice(&f.to_le_bytes()));
+    let pos_len = bin.len();
+    indices
+        .iter()
+        .for_each(|i| bin.extend_from_slice(&i.to_le_bytes()));
+    let uri = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&bin)
+    );
+    serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "tri"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3",
+             "min": [0,0,0], "max": [1,1,1]},
+            {"bufferView": 1, "componentType": 5125, "count": indices.len(), "type": "SCALAR"}
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": view_len_override.unwrap_or(pos_len)},
+            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len}
+        ],
+        "buffers": [{"byteLength": bin.len(), "uri": uri}]
+    })
+    .to_string()
+}
+
+#[test]
+fn hand_made_files_load_or_fail_precisely() {
+    let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let ok = tiny_gltf(&p, &[0, 1, 2], None);
+    let s = load_slice("tiny", ok.as_bytes(), None, Path::new("tiny.gltf")).unwrap();
+    assert_eq!((s.objects().len(), s.triangle_count()), (1, 1));
+    assert_eq!(s.objects()[0].name, "tri");
+
+    let bad_index = tiny_gltf(&p, &[0, 1, 7], None);
+    let e = load_slice("t", bad_index.as_bytes(), None, Path::new("t.gltf"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("index 7 is out of range"), "{e}");
+
+    // The POSITION accessor claims 3 vertices but its view holds 2.
+    let short_view = tiny_gltf(&p, &[0, 1, 2], Some(24));
+    let e = load_slice("t", short_view.as_bytes(), None, Path::new("t.gltf"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("POSITION accessor 0") && e.contains("past the end"),
+        "{e}"
+    );
+
+    let nan = tiny_gltf(
+        &[[0.0, f32::NAN, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        &[0, 1, 2],
+        None,
+    );
+    let e = load_slice("t", nan.as_bytes(), None, Path::new("t.gltf"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("not finite"), "{e}");
+
+    let truncated = &ok.as_bytes()[..ok.len() / 2];
+    let e = load_slice("t", truncated, None, Path::new("cut.gltf"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("cut.gltf: not a valid glTF file"), "{e}");
+}
+
+#[test]
+fn node_cycles_are_refused() {
+    let doc = serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"children": [1]}, {"children": [0]}]
+    })
+    .to_string();
+    match load_slice("c", doc.as_bytes(), None, Path::new("c.gltf")) {
+        Err(e) => assert!(e.to_string().contains("c.gltf"), "{e}"),
+        Ok(_) => panic!("a cyclic hierarchy loaded"),
+    }
+}
