@@ -13,4 +13,5 @@
 pub mod cull;
 pub mod geom;
 pub mod scene;
+pub mod server;
 pub mod spatial;

@@ -7,8 +7,11 @@ use std::path::Path;
 use common::{shared_scene, shared_scene_path};
 use pvsd::scene::{load_path, load_slice};
 
-/// (name, instances, triangles, world bounds min, max) from `../shared/scenes/README.md`.
-const SHARED: [(&str, usize, usize, [f64; 3], [f64; 3]); 3] = [
+/// A row of the table in `../shared/scenes/README.md`:
+/// (name, instances, triangles, world bounds min, max).
+type Documented = (&'static str, usize, usize, [f64; 3], [f64; 3]);
+
+const SHARED: [Documented; 3] = [
     (
         "2CylinderEngine",
         67,

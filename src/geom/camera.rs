@@ -141,7 +141,7 @@ impl Camera {
         let forward = self.forward.try_normalize()?;
         let up = self.up.try_normalize()?;
         let right = forward.cross(up);
-        if !(right.length() > PARALLEL_TOLERANCE) {
+        if right.length().partial_cmp(&PARALLEL_TOLERANCE) != Some(std::cmp::Ordering::Greater) {
             return None;
         }
         let right = right.normalize();

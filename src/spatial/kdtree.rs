@@ -311,7 +311,7 @@ impl Builder {
     fn choose_split(&self, cell: &Aabb, items: &[u32]) -> Option<(usize, f32, Vec<u32>, Vec<u32>)> {
         let axis = cell.longest_axis();
         let (cmin, cmax) = (cell.min[axis], cell.max[axis]);
-        if !(cmax > cmin) {
+        if cmax.partial_cmp(&cmin) != Some(std::cmp::Ordering::Greater) {
             return None;
         }
         let median = cmin + (cmax - cmin) * 0.5;

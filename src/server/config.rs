@@ -1,0 +1,115 @@
+//! `pvsd serve --config FILE`: the server's settings as TOML.
+//!
+//! ```toml
+//! addr = "127.0.0.1:8080"
+//! scenes = ["scenes/city1k.glb", "../shared/scenes/Sponza/Sponza.gltf"]
+//! body_limit_bytes = 65536
+//! request_timeout_ms = 10000
+//! ```
+//! Every key is optional; flags given on the command line win over the file.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use super::Limits;
+
+/// The file's contents.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ServeConfig {
+    /// Address to listen on.
+    pub addr: Option<SocketAddr>,
+    /// Scene files to load; relative paths are relative to the config file.
+    #[serde(default)]
+    pub scenes: Vec<PathBuf>,
+    /// Largest request body accepted, bytes.
+    pub body_limit_bytes: Option<usize>,
+    /// Request timeout, milliseconds.
+    pub request_timeout_ms: Option<u64>,
+}
+
+/// A config file that could not be used.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {problem}", path.display())]
+pub struct ConfigError {
+    /// The file.
+    pub path: PathBuf,
+    /// What is wrong.
+    pub problem: String,
+}
+
+impl ServeConfig {
+    /// Reads and checks a config file.
+    pub fn load(path: &Path) -> Result<ServeConfig, ConfigError> {
+        let fail = |problem: String| ConfigError {
+            path: path.to_path_buf(),
+            problem,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| fail(format!("cannot read: {e}")))?;
+        let mut cfg: ServeConfig = toml::from_str(&text).map_err(|e| fail(e.to_string()))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        for s in &mut cfg.scenes {
+            if s.is_relative() {
+                *s = dir.join(&*s);
+            }
+        }
+        if cfg.body_limit_bytes == Some(0) {
+            return Err(fail("body_limit_bytes must be > 0".into()));
+        }
+        if cfg.request_timeout_ms == Some(0) {
+            return Err(fail("request_timeout_ms must be > 0".into()));
+        }
+        Ok(cfg)
+    }
+
+    /// The limits it sets, defaults for what it leaves out.
+    pub fn limits(&self) -> Limits {
+        let d = Limits::default();
+        Limits {
+            body_bytes: self.body_limit_bytes.unwrap_or(d.body_bytes),
+            request_timeout: self
+                .request_timeout_ms
+                .map_or(d.request_timeout, Duration::from_millis),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_keys_and_resolves_relative_scenes() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("pvsd.toml");
+        std::fs::write(
+            &p,
+            "addr = \"127.0.0.1:9000\"\nscenes = [\"a.glb\"]\nrequest_timeout_ms = 50\n",
+        )
+        .unwrap();
+        let c = ServeConfig::load(&p).unwrap();
+        assert_eq!(c.addr, Some("127.0.0.1:9000".parse().unwrap()));
+        assert_eq!(c.scenes, vec![dir.path().join("a.glb")]);
+        assert_eq!(c.limits().request_timeout, Duration::from_millis(50));
+        assert_eq!(c.limits().body_bytes, Limits::default().body_bytes);
+    }
+
+    #[test]
+    fn unknown_keys_and_zero_limits_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("pvsd.toml");
+        std::fs::write(&p, "adr = \"x\"\n").unwrap();
+        let e = ServeConfig::load(&p).unwrap_err().to_string();
+        assert!(e.contains("pvsd.toml") && e.contains("adr"), "{e}");
+        std::fs::write(&p, "body_limit_bytes = 0\n").unwrap();
+        assert!(
+            ServeConfig::load(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("body_limit_bytes")
+        );
+    }
+}

@@ -1,0 +1,116 @@
+//! Errors as clients see them: a status and `{"error": {"code", "message"}}`.
+//!
+//! Every handler returns `Result<_, ApiError>`; internals are logged, never
+//! sent. A bad request never panics and never changes shared state.
+
+use axum::Json;
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use serde_json::json;
+
+use crate::cull::MethodError;
+use crate::geom::CameraError;
+
+/// Everything a request can fail with.
+#[derive(Debug, thiserror::Error)]
+pub enum ApiError {
+    /// The camera cannot be used (`eye[1] is NaN`, `up is parallel to forward`).
+    #[error("{0}")]
+    InvalidView(String),
+    /// The body is not JSON, or not of the expected shape (the path is named).
+    #[error("{0}")]
+    MalformedJson(String),
+    /// The body is over the configured limit.
+    #[error("request body is larger than the limit of {limit} bytes")]
+    BodyTooLarge {
+        /// The limit in force.
+        limit: usize,
+    },
+    /// No scene has this id.
+    #[error("no scene '{id}'; loaded scenes: {}", loaded.join(", "))]
+    UnknownScene {
+        /// What the client asked for.
+        id: String,
+        /// What is loaded.
+        loaded: Vec<String>,
+    },
+    /// The method or its options were refused.
+    #[error(transparent)]
+    Method(#[from] MethodError),
+    /// No route here.
+    #[error("no route for {method} {path}")]
+    NoRoute {
+        /// The HTTP method.
+        method: String,
+        /// The path asked.
+        path: String,
+    },
+    /// The route exists but not with this HTTP method.
+    #[error("{method} is not allowed on {path}")]
+    MethodNotAllowed {
+        /// The HTTP method.
+        method: String,
+        /// The path asked.
+        path: String,
+    },
+    /// The request took longer than the configured timeout.
+    #[error("the request took longer than {ms} ms")]
+    Timeout {
+        /// The timeout in force.
+        ms: u64,
+    },
+    /// A bug or an unexpected failure; details go to the log only.
+    #[error("internal error")]
+    Internal(String),
+}
+
+impl From<CameraError> for ApiError {
+    fn from(e: CameraError) -> Self {
+        ApiError::InvalidView(e.to_string())
+    }
+}
+
+impl ApiError {
+    /// The status and the stable machine-readable code.
+    pub fn status_and_code(&self) -> (StatusCode, &'static str) {
+        match self {
+            ApiError::InvalidView(_) => (StatusCode::BAD_REQUEST, "invalid_view"),
+            ApiError::MalformedJson(_) => (StatusCode::BAD_REQUEST, "malformed_json"),
+            ApiError::BodyTooLarge { .. } => (StatusCode::PAYLOAD_TOO_LARGE, "body_too_large"),
+            ApiError::UnknownScene { .. } => (StatusCode::NOT_FOUND, "unknown_scene"),
+            ApiError::Method(e) => (
+                StatusCode::BAD_REQUEST,
+                match e {
+                    MethodError::Unknown { .. } => "unknown_method",
+                    MethodError::Unsupported { .. } => "unsupported_method",
+                    MethodError::UnknownOption { .. } => "unknown_option",
+                    MethodError::InvalidOption { .. } | MethodError::Malformed { .. } => {
+                        "invalid_option"
+                    }
+                },
+            ),
+            ApiError::NoRoute { .. } => (StatusCode::NOT_FOUND, "not_found"),
+            ApiError::MethodNotAllowed { .. } => {
+                (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed")
+            }
+            ApiError::Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+        }
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let (status, code) = self.status_and_code();
+        if let ApiError::Internal(detail) = &self {
+            tracing::error!(%detail, "internal error");
+        } else {
+            tracing::debug!(%code, message = %self, "request refused");
+        }
+        (
+            status,
+            Json(json!({ "error": { "code": code, "message": self.to_string() } })),
+        )
+            .into_response()
+    }
+}

@@ -1,0 +1,162 @@
+//! `/metrics`: Prometheus counters and histograms.
+//!
+//! Each [`Metrics`] has its own registry (not a process-global recorder), so
+//! tests can run many servers in one process without sharing counts.
+
+use std::time::Instant;
+
+use axum::extract::{MatchedPath, Request, State};
+use axum::middleware::Next;
+use axum::response::Response;
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
+use prometheus_client::registry::Registry;
+
+use super::state::AppState;
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct RouteLabels {
+    route: String,
+    method: String,
+    status: u16,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct RouteLatencyLabels {
+    route: String,
+    method: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct CullLabels {
+    scene: String,
+    method: String,
+}
+
+/// The server's metrics.
+pub struct Metrics {
+    registry: Registry,
+    /// Requests by route template, HTTP method and status.
+    requests: Family<RouteLabels, Counter>,
+    /// Request latency by route template and HTTP method, seconds.
+    latency: Family<RouteLatencyLabels, Histogram, fn() -> Histogram>,
+    /// Cull time by scene and culling method, seconds.
+    cull: Family<CullLabels, Histogram, fn() -> Histogram>,
+    /// Size of answers by scene and culling method, objects.
+    visible: Family<CullLabels, Histogram, fn() -> Histogram>,
+    /// Scenes loaded.
+    scenes: Gauge,
+}
+
+fn latency_histogram() -> Histogram {
+    // 1 µs to ~16 s.
+    Histogram::new(exponential_buckets(1e-6, 2.0, 25))
+}
+
+fn size_histogram() -> Histogram {
+    // 1 to ~1M objects.
+    Histogram::new(exponential_buckets(1.0, 2.0, 21))
+}
+
+impl Metrics {
+    /// Fresh metrics in a registry of their own.
+    pub fn new() -> Self {
+        let mut registry = Registry::with_prefix("pvsd");
+        let requests = Family::<RouteLabels, Counter>::default();
+        let latency =
+            Family::<RouteLatencyLabels, Histogram, fn() -> Histogram>::new_with_constructor(
+                latency_histogram as fn() -> Histogram,
+            );
+        let cull = Family::<CullLabels, Histogram, fn() -> Histogram>::new_with_constructor(
+            latency_histogram as fn() -> Histogram,
+        );
+        let visible = Family::<CullLabels, Histogram, fn() -> Histogram>::new_with_constructor(
+            size_histogram as fn() -> Histogram,
+        );
+        let scenes = Gauge::default();
+        registry.register(
+            "http_requests",
+            "HTTP requests by route, method and status",
+            requests.clone(),
+        );
+        registry.register(
+            "http_request_duration_seconds",
+            "HTTP request latency",
+            latency.clone(),
+        );
+        registry.register(
+            "cull_duration_seconds",
+            "Time to cull one view",
+            cull.clone(),
+        );
+        registry.register("visible_objects", "Objects in an answer", visible.clone());
+        registry.register("scenes", "Scenes loaded", scenes.clone());
+        Metrics {
+            registry,
+            requests,
+            latency,
+            cull,
+            visible,
+            scenes,
+        }
+    }
+
+    /// Records one cull.
+    pub fn observe_cull(&self, scene: &str, method: &str, seconds: f64, visible: u64) {
+        let labels = CullLabels {
+            scene: scene.to_string(),
+            method: method.to_string(),
+        };
+        self.cull.get_or_create(&labels).observe(seconds);
+        self.visible.get_or_create(&labels).observe(visible as f64);
+    }
+
+    /// Sets the number of scenes loaded.
+    pub fn set_scenes(&self, n: usize) {
+        self.scenes.set(n as i64);
+    }
+
+    /// The Prometheus text exposition.
+    pub fn encode(&self) -> String {
+        let mut out = String::new();
+        prometheus_client::encoding::text::encode(&mut out, &self.registry)
+            .expect("writing to a String");
+        out
+    }
+}
+
+impl Default for Metrics {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Middleware: counts every request and times it, by route template (so ids
+/// in paths do not make new series) and HTTP method.
+pub async fn track(State(state): State<AppState>, req: Request, next: Next) -> Response {
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_string(), |p| p.as_str().to_string());
+    let method = req.method().to_string();
+    let start = Instant::now();
+    let response = next.run(req).await;
+    let m = state.metrics();
+    m.latency
+        .get_or_create(&RouteLatencyLabels {
+            route: route.clone(),
+            method: method.clone(),
+        })
+        .observe(start.elapsed().as_secs_f64());
+    m.requests
+        .get_or_create(&RouteLabels {
+            route,
+            method,
+            status: response.status().as_u16(),
+        })
+        .inc();
+    response
+}

@@ -1,0 +1,116 @@
+//! The handlers, one per route of DESIGN's HTTP API.
+//!
+//! Culling runs on the async worker: frustum culling takes microseconds,
+//! well under the ~100 µs past which work belongs on `spawn_blocking`.
+
+use axum::Json;
+use axum::extract::{OriginalUri, Path, State};
+use axum::http::{Method, header};
+use axum::response::IntoResponse;
+
+use super::error::ApiError;
+use super::extract::JsonBody;
+use super::state::AppState;
+use super::wire::{Bounds, ObjectInfo, SceneInfo, ViewRequest, VisibleResponse};
+use crate::cull::{View, VisibleSet};
+
+/// `GET /healthz`: 200 while the server runs.
+pub async fn healthz() -> &'static str {
+    "ok"
+}
+
+/// `GET /scenes`: every scene with its size, bounds and methods.
+pub async fn scenes(State(state): State<AppState>) -> Json<Vec<SceneInfo>> {
+    Json(
+        state
+            .scenes()
+            .map(|m| {
+                let s = m.scene();
+                SceneInfo {
+                    id: s.id.clone(),
+                    objects: s.objects().len(),
+                    triangles: s.triangle_count(),
+                    bounds: Bounds::new(s.to_world(&s.bounds())),
+                    up: s.up().to_array(),
+                    methods: m.names().into_iter().map(String::from).collect(),
+                }
+            })
+            .collect(),
+    )
+}
+
+/// `GET /scenes/{id}/objects`: what each id means.
+pub async fn objects(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<Vec<ObjectInfo>>, ApiError> {
+    let s = state.scene(&id)?.scene();
+    Ok(Json(
+        s.objects()
+            .iter()
+            .map(|o| ObjectInfo {
+                id: o.id,
+                name: o.name.clone(),
+                bounds: (!o.bounds.is_empty()).then(|| Bounds::new(s.to_world(&o.bounds))),
+            })
+            .collect(),
+    ))
+}
+
+/// `POST /scenes/{id}/visible`: the potentially visible set of one view.
+pub async fn visible(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    JsonBody(req): JsonBody<ViewRequest>,
+) -> Result<Json<VisibleResponse>, ApiError> {
+    let methods = state.scene(&id)?;
+    let spec = req.method_spec()?;
+    let view = View::new(req.camera(), methods.scene())?;
+    let mut out = VisibleSet::new();
+    let stats = methods.cull_once(&spec, &view, &mut out)?;
+    state
+        .metrics()
+        .observe_cull(&id, stats.method, stats.cull_us * 1e-6, stats.visible);
+    Ok(Json(VisibleResponse {
+        visible: out.ids().to_vec(),
+        stats: stats.into(),
+    }))
+}
+
+/// `GET /metrics`: Prometheus text.
+pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    (
+        [(
+            header::CONTENT_TYPE,
+            "application/openmetrics-text; version=1.0.0; charset=utf-8",
+        )],
+        state.metrics().encode(),
+    )
+}
+
+/// Any path no route matches.
+pub async fn no_route(method: Method, OriginalUri(uri): OriginalUri) -> ApiError {
+    ApiError::NoRoute {
+        method: method.to_string(),
+        path: uri.path().to_string(),
+    }
+}
+
+/// A route that exists, asked with the wrong HTTP method.
+pub async fn method_not_allowed(method: Method, OriginalUri(uri): OriginalUri) -> ApiError {
+    ApiError::MethodNotAllowed {
+        method: method.to_string(),
+        path: uri.path().to_string(),
+    }
+}
+
+/// For `HandleErrorLayer`: what the timeout layer's error becomes.
+pub async fn timed_out(state: AppState, err: tower::BoxError) -> ApiError {
+    if err.is::<tower::timeout::error::Elapsed>() {
+        ApiError::Timeout {
+            ms: state.limits().request_timeout.as_millis() as u64,
+        }
+    } else {
+        ApiError::Internal(err.to_string())
+    }
+}

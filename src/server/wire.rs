@@ -1,0 +1,212 @@
+//! The JSON bodies of the HTTP API (DESIGN "HTTP API"), and their conversion
+//! to and from the library's types. Only the server knows serde's shapes.
+
+use glam::DVec3;
+use serde::{Deserialize, Deserializer, Serialize};
+
+use super::error::ApiError;
+use crate::cull::{CullStats, MethodOptions, MethodSpec};
+use crate::geom::Camera;
+
+/// A number that may also arrive as `"NaN"`, `"Infinity"` or `"-Infinity"`
+/// (see `extract`), so that validation can name the field that is not finite.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Number(pub f64);
+
+impl<'de> Deserialize<'de> for Number {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = Number;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a number")
+            }
+            fn visit_f64<E>(self, v: f64) -> Result<Number, E> {
+                Ok(Number(v))
+            }
+            fn visit_i64<E>(self, v: i64) -> Result<Number, E> {
+                Ok(Number(v as f64))
+            }
+            fn visit_u64<E>(self, v: u64) -> Result<Number, E> {
+                Ok(Number(v as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Number, E> {
+                match v {
+                    "NaN" => Ok(Number(f64::NAN)),
+                    "Infinity" => Ok(Number(f64::INFINITY)),
+                    "-Infinity" => Ok(Number(f64::NEG_INFINITY)),
+                    _ => Err(E::invalid_type(serde::de::Unexpected::Str(v), &self)),
+                }
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
+}
+
+/// A view as clients send it (DESIGN: "A **view**"). Absent fields take
+/// [`Camera::default`]'s values; `aspect` defaults to the viewport's.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewRequest {
+    /// Eye position, world coordinates.
+    pub eye: [Number; 3],
+    /// Viewing direction.
+    pub forward: [Number; 3],
+    /// Up direction (default +Y).
+    pub up: Option<[Number; 3]>,
+    /// Vertical field of view, degrees (default 60).
+    pub fov_y_deg: Option<Number>,
+    /// Width / height (default: the viewport's, else 1.6).
+    pub aspect: Option<Number>,
+    /// Near plane distance (default 0.1).
+    pub near: Option<Number>,
+    /// Far plane distance (default 10000).
+    pub far: Option<Number>,
+    /// Image size in pixels (default 1024 × 640).
+    pub viewport: Option<[u32; 2]>,
+    /// Culling method (default `auto`).
+    pub method: Option<String>,
+    /// The method's knobs.
+    #[serde(default)]
+    pub options: serde_json::Map<String, serde_json::Value>,
+}
+
+fn vec3(v: [Number; 3]) -> DVec3 {
+    DVec3::new(v[0].0, v[1].0, v[2].0)
+}
+
+impl ViewRequest {
+    /// The camera (not yet validated: `View::new` does that, naming fields).
+    pub fn camera(&self) -> Camera {
+        let d = Camera::default();
+        let viewport = self.viewport.unwrap_or(d.viewport);
+        let aspect = match (self.aspect, self.viewport) {
+            (Some(a), _) => a.0,
+            (None, Some([w, h])) if w > 0 && h > 0 => w as f64 / h as f64,
+            _ => d.aspect,
+        };
+        Camera {
+            eye: vec3(self.eye),
+            forward: vec3(self.forward),
+            up: self.up.map_or(d.up, vec3),
+            fov_y_deg: self.fov_y_deg.map_or(d.fov_y_deg, |n| n.0),
+            aspect,
+            near: self.near.map_or(d.near, |n| n.0),
+            far: self.far.map_or(d.far, |n| n.0),
+            viewport,
+        }
+    }
+
+    /// The method and its options.
+    pub fn method_spec(&self) -> Result<MethodSpec, ApiError> {
+        method_spec(self.method.as_deref(), &self.options)
+    }
+}
+
+/// A method spec from a JSON name and options object. Option values may be
+/// strings, numbers or booleans; anything else is refused by name.
+pub fn method_spec(
+    name: Option<&str>,
+    options: &serde_json::Map<String, serde_json::Value>,
+) -> Result<MethodSpec, ApiError> {
+    let mut spec = MethodSpec::named(name.unwrap_or("auto"))?;
+    let mut opts = MethodOptions::new();
+    for (k, v) in options {
+        let text = match v {
+            serde_json::Value::String(s) => s.clone(),
+            serde_json::Value::Number(n) => n.to_string(),
+            serde_json::Value::Bool(b) => b.to_string(),
+            _ => {
+                return Err(ApiError::MalformedJson(format!(
+                    "options.{k}: must be a string, number or boolean"
+                )));
+            }
+        };
+        opts.insert(k.clone(), text);
+    }
+    spec.options = opts;
+    Ok(spec)
+}
+
+/// A box in world coordinates.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Bounds {
+    /// Smallest corner.
+    pub min: [f64; 3],
+    /// Largest corner.
+    pub max: [f64; 3],
+}
+
+impl Bounds {
+    /// From a world-space `(min, max)` pair.
+    pub fn new((min, max): (DVec3, DVec3)) -> Self {
+        Bounds {
+            min: min.to_array(),
+            max: max.to_array(),
+        }
+    }
+}
+
+/// One entry of `GET /scenes`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SceneInfo {
+    /// The scene id (file stem).
+    pub id: String,
+    /// Number of objects.
+    pub objects: usize,
+    /// Number of triangles.
+    pub triangles: usize,
+    /// World bounds.
+    pub bounds: Bounds,
+    /// The up axis.
+    pub up: [f32; 3],
+    /// Methods it supports (`auto` is always accepted besides).
+    pub methods: Vec<String>,
+}
+
+/// One entry of `GET /scenes/{id}/objects`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ObjectInfo {
+    /// The object id.
+    pub id: u32,
+    /// Its name.
+    pub name: String,
+    /// World bounds; `null` for an object with no triangles.
+    pub bounds: Option<Bounds>,
+}
+
+/// The `stats` of an answer.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct StatsBody {
+    /// The method that answered.
+    pub method: String,
+    /// Cull time, microseconds.
+    pub cull_us: f64,
+    /// Hierarchy nodes tested.
+    pub nodes_tested: u64,
+    /// Objects in the frustum.
+    pub in_frustum: u64,
+    /// Objects in the answer.
+    pub visible: u64,
+}
+
+impl From<CullStats> for StatsBody {
+    fn from(s: CullStats) -> Self {
+        StatsBody {
+            method: s.method.to_string(),
+            cull_us: s.cull_us,
+            nodes_tested: s.nodes_tested,
+            in_frustum: s.in_frustum,
+            visible: s.visible,
+        }
+    }
+}
+
+/// The answer of `POST /scenes/{id}/visible`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct VisibleResponse {
+    /// Possibly visible object ids, ascending.
+    pub visible: Vec<u32>,
+    /// What it cost.
+    pub stats: StatsBody,
+}

@@ -1,0 +1,213 @@
+//! The `pvsd` binary end to end: help, gen, query, and serve on a real
+//! socket stopped by SIGTERM.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::shared_scene_path;
+use serde_json::Value;
+
+fn pvsd() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_pvsd"));
+    c.env_remove("RUST_BACKTRACE").env("RUST_LOG", "info");
+    c
+}
+
+fn run(args: &[&str]) -> (bool, String, String) {
+    let out = pvsd().args(args).output().unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into(),
+        String::from_utf8_lossy(&out.stderr).into(),
+    )
+}
+
+#[test]
+fn every_command_explains_itself() {
+    for args in [
+        &["--help"][..],
+        &["serve", "--help"],
+        &["gen", "--help"],
+        &["gen", "city", "--help"],
+        &["query", "--help"],
+    ] {
+        let (ok, out, _) = run(args);
+        assert!(ok, "{args:?}");
+        assert!(out.contains("Usage"), "{args:?}: {out}");
+    }
+    let (_, out, _) = run(&["serve", "--help"]);
+    assert!(
+        out.contains("generated city") && out.contains("--scene"),
+        "{out}"
+    );
+}
+
+#[test]
+fn gen_then_query() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("town.glb");
+    let f = file.to_str().unwrap();
+    let (ok, _, err) = run(&["gen", "city", "--buildings", "120", "--seed", "4", "-o", f]);
+    assert!(ok, "{err}");
+    assert!(err.contains("121 objects"), "{err}");
+    let (ok, out, err) = run(&[
+        "query",
+        "--scene",
+        f,
+        "--eye",
+        "-20,1.7,-20",
+        "--dir",
+        "1,0,1",
+        "--method",
+        "frustum",
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let v: Value = serde_json::from_str(&out).unwrap();
+    assert!(!v["visible"].as_array().unwrap().is_empty());
+    assert_eq!(v["stats"]["method"], "frustum");
+
+    let (ok, out, _) = run(&[
+        "query",
+        "--scene",
+        f,
+        "--eye",
+        "-20,1.7,-20",
+        "--dir",
+        "1,0,1",
+    ]);
+    assert!(ok);
+    assert!(out.starts_with("frustum: "), "{out}");
+    assert!(out.contains("building_"), "{out}");
+
+    let office = dir.path().join("office.glb");
+    let (ok, _, err) = run(&[
+        "gen",
+        "office",
+        "--details",
+        "10",
+        "-o",
+        office.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+}
+
+#[test]
+fn cli_errors_are_one_clear_line() {
+    let scene = shared_scene_path("Sponza");
+    let s = scene.to_str().unwrap();
+    let cases: [(&[&str], &str); 5] = [
+        (
+            &["query", "--scene", s, "--eye", "0,nan,0", "--dir", "1,0,0"],
+            "error: eye[1] is NaN",
+        ),
+        (
+            &["query", "--scene", s, "--eye", "0,1,0", "--dir", "0,0,0"],
+            "error: forward is a zero vector",
+        ),
+        (
+            &[
+                "query", "--scene", s, "--eye", "0,1,0", "--dir", "1,0,0", "--method", "ddo",
+            ],
+            "not supported by scene 'Sponza'",
+        ),
+        (
+            &[
+                "query",
+                "--scene",
+                "/nonexistent/x.glb",
+                "--eye",
+                "0,1,0",
+                "--dir",
+                "1,0,0",
+            ],
+            "/nonexistent/x.glb: cannot read file",
+        ),
+        (
+            &["query", "--scene", s, "--eye", "0,1", "--dir", "1,0,0"],
+            "expected three comma-separated numbers",
+        ),
+    ];
+    for (args, want) in cases {
+        let (ok, _, err) = run(args);
+        assert!(!ok, "{args:?}");
+        assert!(err.contains(want), "{args:?}: {err}");
+        assert!(!err.contains("backtrace"), "{err}");
+    }
+}
+
+#[test]
+fn serve_refuses_a_broken_scene_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("broken.glb");
+    std::fs::write(&bad, b"glTF garbage").unwrap();
+    let (ok, _, err) = run(&[
+        "serve",
+        "--scene",
+        bad.to_str().unwrap(),
+        "--addr",
+        "127.0.0.1:0",
+    ]);
+    assert!(!ok);
+    assert!(err.contains("broken.glb"), "{err}");
+}
+
+#[test]
+fn serve_answers_and_stops_on_sigterm() {
+    let mut child = pvsd()
+        .args(["serve", "--addr", "127.0.0.1:0"])
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let addr = loop {
+        assert!(Instant::now() < deadline, "no 'listening on' line");
+        let line = lines.next().expect("server exited early").unwrap();
+        if let Some(rest) = line.split("listening on http://").nth(1) {
+            break rest.trim().to_string();
+        }
+    };
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    rt.block_on(async {
+        let c = reqwest::Client::new();
+        let scenes: Value = c
+            .get(format!("http://{addr}/scenes"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        assert_eq!(scenes[0]["id"], "city", "the built-in city");
+        let v: Value = c
+            .post(format!("http://{addr}/scenes/city/visible"))
+            .body(r#"{"eye":[60,1.7,-20],"forward":[1,0,0.3]}"#)
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        assert!(!v["visible"].as_array().unwrap().is_empty(), "{v}");
+    });
+    let status = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if let Some(code) = child.try_wait().unwrap() {
+            assert!(code.success(), "graceful exit, got {code}");
+            break;
+        }
+        assert!(Instant::now() < deadline, "did not stop on SIGTERM");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
