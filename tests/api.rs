@@ -335,6 +335,43 @@ async fn metrics_count_requests_by_route_and_culls_by_method() {
     assert!(text.contains("pvsd_scenes 1"));
 }
 
+/// A request body that never finishes arriving (a stalled or slow-loris client).
+struct Stalled;
+
+impl http_body::Body for Stalled {
+    type Data = axum::body::Bytes;
+    type Error = std::convert::Infallible;
+    fn poll_frame(
+        self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Self::Data>, Self::Error>>> {
+        std::task::Poll::Pending
+    }
+}
+
+#[tokio::test]
+async fn a_request_over_the_timeout_is_a_503_and_the_next_one_works() {
+    let limits = Limits {
+        request_timeout: std::time::Duration::from_millis(100),
+        ..Limits::default()
+    };
+    let s = AppState::new(vec![city_scene(50, 3, [0.0; 3])], limits).unwrap();
+    let req = Request::post("/scenes/city/visible")
+        .body(Body::new(Stalled))
+        .unwrap();
+    let res = app(s.clone()).oneshot(req).await.unwrap();
+    assert_eq!(res.status(), StatusCode::SERVICE_UNAVAILABLE);
+    let body: Value =
+        serde_json::from_slice(&res.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    assert_eq!(body["error"]["code"], "timeout");
+    assert_eq!(
+        body["error"]["message"],
+        "the request took longer than 100 ms"
+    );
+    let (status, _) = call(&s, "POST", "/scenes/city/visible", Some(VIEW)).await;
+    assert_eq!(status, StatusCode::OK);
+}
+
 #[test]
 fn duplicate_scene_ids_are_refused() {
     let s = city_scene(10, 1, [0.0; 3]);

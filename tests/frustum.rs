@@ -253,3 +253,33 @@ fn looking_away_sees_nothing_and_from_above_sees_much() {
         "the whole city from high above"
     );
 }
+
+/// Regression: the city's ground quad is referenced by every kd leaf. With
+/// node bounds as unions of whole boxes, every node's bounds was the whole
+/// city and a 10° view tested all 1933 nodes; bounds clipped to the cells
+/// keep the hierarchy useful.
+#[test]
+fn issue_2_a_ground_plane_does_not_defeat_the_hierarchy() {
+    let m = prepared(city_scene(1000, 1, [0.0; 3]));
+    let tree = pvsd::spatial::KdTree::build(m.scene(), Default::default());
+    let cam = Camera {
+        fov_y_deg: 10.0,
+        ..look(
+            DVec3::new(400.0, 1.7, 150.0),
+            DVec3::new(1.0, 0.0, 0.27),
+            DVec3::Y,
+        )
+    };
+    let view = View::new(cam, m.scene()).unwrap();
+    let mut out = VisibleSet::new();
+    let stats = m
+        .cull_once(&MethodSpec::named("frustum").unwrap(), &view, &mut out)
+        .unwrap();
+    assert!(stats.visible > 20, "{stats:?}");
+    assert!(
+        stats.nodes_tested * 4 < tree.nodes().len() as u64,
+        "{} of {} nodes tested",
+        stats.nodes_tested,
+        tree.nodes().len()
+    );
+}

@@ -204,6 +204,32 @@ fn hand_made_files_load_or_fail_precisely() {
 }
 
 #[test]
+fn primitives_that_are_not_triangles_are_skipped() {
+    let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let mut doc: serde_json::Value =
+        serde_json::from_str(&tiny_gltf(&p, &[0, 1, 2], None)).unwrap();
+    let tri = doc["meshes"][0]["primitives"][0].clone();
+    let mut lines = tri.clone();
+    lines["mode"] = serde_json::json!(1);
+    let mut strip = tri.clone();
+    strip["mode"] = serde_json::json!(5);
+    doc["meshes"][0]["primitives"] = serde_json::json!([lines, tri, strip]);
+    let s = load_slice(
+        "mixed",
+        doc.to_string().as_bytes(),
+        None,
+        Path::new("mixed.gltf"),
+    )
+    .unwrap();
+    assert_eq!(s.objects().len(), 1);
+    assert_eq!(
+        s.triangle_count(),
+        2,
+        "the triangle list and the one-triangle strip; the lines are skipped"
+    );
+}
+
+#[test]
 fn node_cycles_are_refused() {
     let doc = serde_json::json!({
         "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],

@@ -62,6 +62,14 @@ impl Aabb {
         b
     }
 
+    /// The part of `self` inside `other` (empty when they do not meet).
+    pub fn clipped(&self, other: &Aabb) -> Aabb {
+        Aabb {
+            min: self.min.max(other.min),
+            max: self.max.min(other.max),
+        }
+    }
+
     /// Whether `other` lies inside `self` (an empty `other` always does).
     pub fn contains(&self, other: &Aabb) -> bool {
         other.is_empty() || (self.min.cmple(other.min).all() && other.max.cmple(self.max).all())
@@ -132,6 +140,18 @@ mod tests {
         assert!(a.intersects(&b));
         let c = Aabb::new(Vec3::new(1.001, 0.0, 0.0), Vec3::new(2.0, 1.0, 1.0));
         assert!(!a.intersects(&c));
+    }
+
+    #[test]
+    fn clipping_keeps_the_common_part() {
+        let a = Aabb::new(Vec3::ZERO, Vec3::splat(2.0));
+        let b = Aabb::new(Vec3::ONE, Vec3::splat(3.0));
+        assert_eq!(a.clipped(&b), Aabb::new(Vec3::ONE, Vec3::splat(2.0)));
+        let far = Aabb::new(Vec3::splat(5.0), Vec3::splat(6.0));
+        assert!(a.clipped(&far).is_empty());
+        // Touching boxes share a flat, non-empty face.
+        let touch = Aabb::new(Vec3::new(2.0, 0.0, 0.0), Vec3::splat(3.0));
+        assert!(!a.clipped(&touch).is_empty());
     }
 
     #[test]

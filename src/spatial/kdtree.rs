@@ -7,10 +7,14 @@
 //! the plane are referenced from both sides. Recursion stops at a leaf size,
 //! a depth limit, or when a split would separate nothing.
 //!
-//! Besides its cell, every node keeps `bounds`: the union of the *whole*
-//! boxes of the objects referenced below it. Cells give the spatial order
-//! later methods traverse in; `bounds` makes box tests on a node exactly as
-//! strict as the same test on each object below it (see `cull::frustum`).
+//! Besides its cell, every node keeps `bounds`: the union of the boxes of the
+//! objects below it, each clipped to the node's cell. It is never larger than
+//! the cell, and usually much smaller (a street's empty air is not in it);
+//! unlike the union of whole boxes it is not spoilt by one large object (a
+//! ground plane, a floor slab) that every leaf references. Every point of an
+//! object's box lies in the clipped box of some leaf that references it, so
+//! a node whose bounds a test rejects holds no part of any object that test
+//! would accept.
 
 use std::ops::Range;
 
@@ -60,7 +64,7 @@ pub enum NodeKind {
 pub struct KdNode {
     /// The region of space this node partitions (children partition it exactly).
     pub cell: Aabb,
-    /// Union of the whole boxes of every object referenced below.
+    /// Union of the boxes of the objects referenced below, each clipped to `cell`.
     pub bounds: Aabb,
     /// Node cost (§5.3): triangles of the distinct objects below.
     pub cost: u64,
@@ -135,8 +139,8 @@ impl KdTree {
 
     /// Checks every structural invariant; tests call it after each build.
     ///
-    /// Children partition their parent's cell at the split; `bounds` hold
-    /// the boxes of every object referenced below and `cost` their triangles;
+    /// Children partition their parent's cell at the split; `bounds` is the
+    /// union of the boxes below clipped to the cell, `cost` their triangles;
     /// reference ranges nest; every object with a box is reachable, and
     /// every leaf its box reaches (by the build's own distribution rule)
     /// references it; leaves respect the limits unless nothing could split.
@@ -193,11 +197,11 @@ impl KdTree {
         distinct.sort_unstable();
         distinct.dedup();
         let bounds = distinct.iter().fold(Aabb::EMPTY, |a, &o| {
-            a.merged(&scene.objects()[o as usize].bounds)
+            a.merged(&scene.objects()[o as usize].bounds.clipped(&n.cell))
         });
         if bounds != n.bounds {
             return Err(format!(
-                "node {i}: bounds {:?} != union of its objects {bounds:?}",
+                "node {i}: bounds {:?} != union of its clipped objects {bounds:?}",
                 n.bounds
             ));
         }
@@ -272,9 +276,9 @@ struct Builder {
 impl Builder {
     fn build(&mut self, cell: Aabb, items: Vec<u32>, depth: u32) -> u32 {
         let index = self.nodes.len() as u32;
-        let bounds = items
-            .iter()
-            .fold(Aabb::EMPTY, |a, &o| a.merged(&self.boxes[o as usize]));
+        let bounds = items.iter().fold(Aabb::EMPTY, |a, &o| {
+            a.merged(&self.boxes[o as usize].clipped(&cell))
+        });
         let cost = items.iter().map(|&o| self.costs[o as usize]).sum();
         let start = self.refs.len() as u32;
         self.nodes.push(KdNode {

@@ -2,14 +2,15 @@
 //! masks (Bittner et al. §5.3, the "F" method of their Table 2, and the
 //! reference every other method is compared against).
 //!
-//! Each node's `bounds` (the union of the whole boxes of the objects below
-//! it) is tested against the planes still in the mask. A node outside one
-//! plane is dropped with its subtree; a plane it lies inside is dropped from
-//! the mask for its subtree; a node inside every plane has all its objects
-//! accepted untested. Because a plane test is monotone in the box (see
-//! [`crate::geom::Plane::classify`]), this returns *exactly* the objects whose
-//! own box passes [`Frustum::intersects`], the brute-force answer
-//! [`FrustumCulling::reference`] gives.
+//! Each node's `bounds` (the boxes below it clipped to its cell) is tested
+//! against the planes still in the mask. A node outside one plane is dropped
+//! with its subtree; a plane it lies inside is dropped from the mask for its
+//! subtree; a node inside every plane has all its objects accepted untested
+//! (each has a part inside the frustum). In a leaf, the part of each
+//! object's box inside the leaf's cell gets the exact test
+//! ([`Frustum::classify_exact`]). Every point of an object's box lies in
+//! such a part, so this returns exactly the objects whose box touches the
+//! frustum: the brute-force answer [`FrustumCulling::reference`] gives.
 
 use std::sync::Arc;
 
@@ -30,8 +31,9 @@ impl FrustumCulling {
         FrustumCulling { scene, tree }
     }
 
-    /// Brute force: every object whose own box passes [`Frustum::intersects`],
-    /// ascending. Tests compare the hierarchical answer with it.
+    /// Brute force: every object whose box touches the frustum
+    /// ([`Frustum::intersects`]), ascending. Tests compare the hierarchical
+    /// answer with it.
     pub fn reference(scene: &Scene, frustum: &Frustum) -> Vec<u32> {
         scene
             .objects()
@@ -80,9 +82,10 @@ impl CullMethod for FrustumCulling {
                 }
                 (Side::Intersecting, NodeKind::Leaf) => {
                     for &id in self.tree.node_refs(node) {
-                        if view.frustum.classify(&objects[id as usize].bounds, mask).0
-                            != Side::Outside
-                        {
+                        // Only the part inside this leaf's cell: the rest of the
+                        // box lies in other leaves, which test their own part.
+                        let part = objects[id as usize].bounds.clipped(&node.cell);
+                        if view.frustum.classify_exact(&part, mask).0 != Side::Outside {
                             out.push(id);
                         }
                     }

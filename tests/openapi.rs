@@ -1,0 +1,170 @@
+//! `proto/openapi.json` says what the router does: every documented
+//! operation is served, its example answered with a documented status, and
+//! the answer fits the documented schema.
+
+mod common;
+
+use axum::body::Body;
+use axum::http::Request;
+use common::city_scene;
+use http_body_util::BodyExt;
+use pvsd::server::{AppState, Limits, app};
+use serde_json::Value;
+use tower::ServiceExt;
+
+fn spec() -> Value {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/proto/openapi.json");
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn resolve<'a>(spec: &'a Value, v: &'a Value) -> &'a Value {
+    match v.get("$ref").and_then(Value::as_str) {
+        Some(r) => resolve(
+            spec,
+            spec.pointer(r.trim_start_matches('#'))
+                .unwrap_or_else(|| panic!("dangling {r}")),
+        ),
+        None => v,
+    }
+}
+
+/// Checks `value` against the subset of JSON Schema the document uses.
+fn conforms(spec: &Value, schema: &Value, value: &Value, at: &str) -> Result<(), String> {
+    let schema = resolve(spec, schema);
+    if let Some(options) = schema.get("oneOf").and_then(Value::as_array) {
+        let fits = options
+            .iter()
+            .filter(|s| conforms(spec, s, value, at).is_ok())
+            .count();
+        return if fits == 1 {
+            Ok(())
+        } else {
+            Err(format!("{at}: fits {fits} of oneOf"))
+        };
+    }
+    let types: Vec<&str> = match schema.get("type") {
+        Some(Value::String(t)) => vec![t.as_str()],
+        Some(Value::Array(ts)) => ts.iter().filter_map(Value::as_str).collect(),
+        _ => vec![],
+    };
+    let kind = match value {
+        Value::Null => "null",
+        Value::Bool(_) => "boolean",
+        Value::Number(n) if n.is_u64() || n.is_i64() => "integer",
+        Value::Number(_) => "number",
+        Value::String(_) => "string",
+        Value::Array(_) => "array",
+        Value::Object(_) => "object",
+    };
+    if !types.is_empty()
+        && !types
+            .iter()
+            .any(|t| *t == kind || (*t == "number" && kind == "integer"))
+    {
+        return Err(format!("{at}: {kind} is not {types:?}"));
+    }
+    if let (Some(e), Some(s)) = (schema.get("enum").and_then(Value::as_array), value.as_str()) {
+        if !e.iter().any(|x| x == s) {
+            return Err(format!("{at}: '{s}' not in enum"));
+        }
+    }
+    if let Value::Object(map) = value {
+        for r in schema
+            .get("required")
+            .and_then(Value::as_array)
+            .into_iter()
+            .flatten()
+        {
+            let r = r.as_str().unwrap();
+            if !map.contains_key(r) {
+                return Err(format!("{at}: missing required '{r}'"));
+            }
+        }
+        let props = schema.get("properties").and_then(Value::as_object);
+        for (k, v) in map {
+            match props.and_then(|p| p.get(k)) {
+                Some(s) => conforms(spec, s, v, &format!("{at}.{k}"))?,
+                None if props.is_some() => return Err(format!("{at}: '{k}' is not documented")),
+                None => {}
+            }
+        }
+    }
+    if let (Value::Array(items), Some(s)) = (value, schema.get("items")) {
+        for (i, v) in items.iter().enumerate() {
+            conforms(spec, s, v, &format!("{at}[{i}]"))?;
+        }
+    }
+    Ok(())
+}
+
+#[tokio::test]
+async fn every_documented_operation_is_served_as_documented() {
+    let spec = spec();
+    let state = AppState::new(vec![city_scene(100, 1, [0.0; 3])], Limits::default()).unwrap();
+    let mut operations = 0;
+    for (path, item) in spec["paths"].as_object().unwrap() {
+        for (method, op) in item.as_object().unwrap() {
+            operations += 1;
+            let uri = path.replace("{id}", "city");
+            let example = op.pointer("/requestBody/content/application~1json/example");
+            let body = example.map_or_else(Body::empty, |e| Body::from(e.to_string()));
+            let req = Request::builder()
+                .method(method.to_uppercase().as_str())
+                .uri(&uri)
+                .body(body)
+                .unwrap();
+            let res = app(state.clone()).oneshot(req).await.unwrap();
+            let status = res.status().as_u16().to_string();
+            let response = op["responses"]
+                .get(&status)
+                .unwrap_or_else(|| panic!("{method} {path}: undocumented status {status}"));
+            let response = resolve(&spec, response);
+            let bytes = res.into_body().collect().await.unwrap().to_bytes();
+            if let Some(schema) = response.pointer("/content/application~1json/schema") {
+                let value: Value = serde_json::from_slice(&bytes).unwrap();
+                conforms(&spec, schema, &value, &format!("{method} {path}")).unwrap();
+            }
+        }
+    }
+    assert_eq!(operations, 5);
+}
+
+#[tokio::test]
+async fn errors_fit_the_error_schema() {
+    let spec = spec();
+    let state = AppState::new(vec![city_scene(10, 1, [0.0; 3])], Limits::default()).unwrap();
+    for (method, uri, body) in [
+        (
+            "POST",
+            "/scenes/city/visible",
+            "{\"eye\":[0,NaN,0],\"forward\":[1,0,0]}",
+        ),
+        ("POST", "/scenes/x/visible", "{}"),
+        ("GET", "/scenes/x/objects", ""),
+        ("GET", "/nowhere", ""),
+    ] {
+        let req = Request::builder()
+            .method(method)
+            .uri(uri)
+            .body(Body::from(body))
+            .unwrap();
+        let res = app(state.clone()).oneshot(req).await.unwrap();
+        let value: Value =
+            serde_json::from_slice(&res.into_body().collect().await.unwrap().to_bytes()).unwrap();
+        conforms(&spec, &spec["components"]["schemas"]["Error"], &value, uri).unwrap();
+    }
+}
+
+#[test]
+fn the_checker_can_fail() {
+    let spec = spec();
+    let stats = &spec["components"]["schemas"]["Stats"];
+    let bad = serde_json::json!({"method": "frustum", "cull_us": 1.0, "nodes_tested": 1, "in_frustum": 1});
+    assert!(
+        conforms(&spec, stats, &bad, "stats")
+            .unwrap_err()
+            .contains("visible")
+    );
+    let extra = serde_json::json!({"method": "f", "cull_us": 1, "nodes_tested": 1, "in_frustum": 1, "visible": 1, "x": 1});
+    assert!(conforms(&spec, stats, &extra, "stats").is_err());
+}
