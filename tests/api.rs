@@ -4,6 +4,8 @@
 
 mod common;
 
+use std::sync::Arc;
+
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use common::{city_scene, shared_scene};
@@ -93,6 +95,16 @@ async fn visible_matches_the_library() {
     assert!(!got.visible.is_empty());
     assert_eq!(got.stats.method, "frustum");
     assert_eq!(got.stats.visible as usize, got.visible.len());
+    // A direction of huge or tiny length is still a direction.
+    let (status, body) = call(
+        &s,
+        "POST",
+        "/scenes/city/visible",
+        Some(&VIEW.replace("[1,0,0.2]", "[1e200,0,2e199]")),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+    assert_eq!(body["visible"], json!(got.visible));
     // `auto` and defaults: only eye and forward are required.
     let (status, body) = call(
         &s,
@@ -192,6 +204,13 @@ fn bad_requests() -> Vec<(&'static str, String, StatusCode, &'static str, &'stat
             bad,
             "invalid_view",
             "viewport[0]",
+        ),
+        (
+            "/scenes/city/visible",
+            view(json!({"aspect": 1e155})),
+            bad,
+            "invalid_view",
+            "aspect makes the horizontal field of view too close to 180",
         ),
         (
             "/scenes/city/visible",
@@ -300,6 +319,26 @@ async fn bad_input_is_a_precise_error_and_the_next_request_works() {
 }
 
 #[tokio::test]
+async fn an_unknown_scene_is_404_whatever_the_body() {
+    let s = state();
+    let (status, body) = call(&s, "POST", "/scenes/nope/visible", Some("{")).await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+    assert_eq!(body["error"]["code"], "unknown_scene");
+}
+
+#[tokio::test]
+async fn a_scene_without_triangles_has_null_bounds() {
+    let empty = Arc::new(pvsd::scene::SceneBuilder::new("void").finish());
+    let s = AppState::new(vec![empty], Limits::default()).unwrap();
+    let (status, body) = call(&s, "GET", "/scenes", None).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(body[0]["bounds"], Value::Null, "{body}");
+    let (status, body) = call(&s, "POST", "/scenes/void/visible", Some(VIEW)).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(body["visible"], json!([]));
+}
+
+#[tokio::test]
 async fn unknown_routes_and_methods_are_json_errors() {
     let s = state();
     let (status, body) = call(&s, "GET", "/nope", None).await;
@@ -311,6 +350,18 @@ async fn unknown_routes_and_methods_are_json_errors() {
     let (status, body) = call(&s, "GET", "/scenes/ghost/objects", None).await;
     assert_eq!(status, StatusCode::NOT_FOUND);
     assert_eq!(body["error"]["code"], "unknown_scene");
+    // Made-up HTTP methods are answered, and do not each get a metric series.
+    for m in ["BREW", "WHEN", "XYZZY"] {
+        let (status, _) = call(&s, m, "/scenes", None).await;
+        assert_eq!(status, StatusCode::METHOD_NOT_ALLOWED);
+    }
+    let (_, metrics) = call(&s, "GET", "/metrics", None).await;
+    let text = metrics.as_str().unwrap();
+    assert!(
+        text.contains(r#"route="/scenes",method="other",status="405"} 3"#),
+        "{text}"
+    );
+    assert!(!text.contains("BREW"));
 }
 
 #[tokio::test]

@@ -8,7 +8,7 @@ mod common;
 use std::sync::Arc;
 
 use common::{city_scene, office_scene, random_camera, rng, shared_scene};
-use glam::{DVec3, Vec3};
+use glam::{DMat4, DVec3};
 use pvsd::cull::frustum::FrustumCulling;
 use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
 use pvsd::geom::Camera;
@@ -29,8 +29,11 @@ fn cull(methods: &SceneMethods, cam: Camera) -> Vec<u32> {
     out.ids().to_vec()
 }
 
-/// Hierarchical equals brute force, and every sampled frustum point's boxes are in.
-fn check_view(methods: &SceneMethods, cam: Camera, samples: usize, seed: u64) -> Vec<u32> {
+/// Hierarchical equals brute force, and every object with a sampled point of
+/// its triangles inside the view is in the answer. The sampling check is
+/// independent of the code under test: points lie on the real geometry, and
+/// "inside" is decided by a glam projection matrix, not by `Frustum`.
+fn check_view(methods: &SceneMethods, cam: Camera, per_object: usize, seed: u64) -> Vec<u32> {
     let scene = methods.scene();
     let got = cull(methods, cam);
     let view = View::new(cam, scene).unwrap();
@@ -39,33 +42,56 @@ fn check_view(methods: &SceneMethods, cam: Camera, samples: usize, seed: u64) ->
         FrustumCulling::reference(scene, &view.frustum),
         "hierarchical != brute force for {cam:?}"
     );
-    let mut r = rng(seed);
     let basis = cam.basis().unwrap();
-    let (tx, ty) = cam.half_tangents();
-    let far = cam
-        .far
-        .min(scene.bounds().extent().max_element() as f64 * 4.0 + cam.near);
-    for _ in 0..samples {
-        let z = cam.near + (far - cam.near) * r.random::<f64>();
-        let (sx, sy) = (r.random_range(-1.0..=1.0), r.random_range(-1.0..=1.0));
-        let p =
-            view.eye + basis.forward * z + basis.right * (sx * tx * z) + basis.up * (sy * ty * z);
-        let pf = p.as_vec3();
-        for o in scene.objects() {
-            // Shrink the box by its own f32 rounding so the sample's rounding cannot matter.
-            let slack =
-                Vec3::splat(o.bounds.max.abs().max(o.bounds.min.abs()).max_element() * 1e-6);
-            let shrunk = pvsd::geom::Aabb::new(o.bounds.min + slack, o.bounds.max - slack);
-            if shrunk.contains_point(pf) {
+    let clip_from_local =
+        DMat4::perspective_rh(cam.fov_y_deg.to_radians(), cam.aspect, cam.near, cam.far)
+            * DMat4::look_to_rh(view.eye, basis.forward, basis.up);
+    // Stay clear of the boundary by a sliver, so rounding cannot make a point
+    // that is outside look inside.
+    let inside = |p: DVec3| {
+        let c = clip_from_local * p.extend(1.0);
+        let m = 1.0 - 1e-6;
+        c.w > 0.0
+            && c.x.abs() <= m * c.w
+            && c.y.abs() <= m * c.w
+            && c.z >= 1e-6 * c.w
+            && c.z <= m * c.w
+    };
+    let mut r = rng(seed);
+    let mut seen = 0;
+    for o in scene.objects() {
+        let tris = scene.object_triangles(o);
+        for _ in 0..per_object.min(tris.len() * 3) {
+            let t = tris[r.random_range(0..tris.len())];
+            let (a, b): (f64, f64) = (r.random(), r.random());
+            let (a, b) = if a + b > 1.0 {
+                (1.0 - a, 1.0 - b)
+            } else {
+                (a, b)
+            };
+            let p = t[0].as_dvec3() + (t[1] - t[0]).as_dvec3() * a + (t[2] - t[0]).as_dvec3() * b;
+            if inside(p) {
+                seen += 1;
                 assert!(
                     got.binary_search(&o.id).is_ok(),
-                    "object {} holds frustum point {p} but was culled",
+                    "object {} has point {p} in view but was culled",
                     o.id
                 );
             }
         }
     }
+    SAMPLED.with(|c| c.set(c.get() + seen));
     got
+}
+
+thread_local! {
+    /// Sampled points that fell in view on this test's thread: proof the
+    /// sampling check had something to check.
+    static SAMPLED: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+fn sampled_in_view() -> usize {
+    SAMPLED.with(|c| c.get())
 }
 
 fn prepared(scene: Arc<Scene>) -> SceneMethods {
@@ -83,6 +109,7 @@ fn equals_brute_force_on_random_views() {
         let m = prepared(scene);
         let mut r = rng(42);
         let mut nonempty = 0;
+        let before = sampled_in_view();
         for i in 0..views {
             let cam = random_camera(&mut r, m.scene(), 0.2);
             nonempty += !check_view(&m, cam, 30, i as u64).is_empty() as u32;
@@ -90,6 +117,11 @@ fn equals_brute_force_on_random_views() {
         assert!(
             nonempty > views / 4,
             "{}: the views see something ({nonempty})",
+            m.scene().id
+        );
+        assert!(
+            sampled_in_view() - before > 1000,
+            "{}: points sampled in view",
             m.scene().id
         );
     }

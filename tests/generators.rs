@@ -59,8 +59,9 @@ fn city_is_urbania_shaped() {
             b.triangle_count()
         );
         assert!(
-            b.bounds.min.y >= ground.bounds.min.y - 1e-3,
-            "stands on the ground"
+            (b.bounds.min.y - ground.bounds.max.y).abs() < 1e-3,
+            "{} stands on the ground",
+            b.name
         );
         tall += (b.bounds.extent().y >= 50.0) as u32;
     }
@@ -68,9 +69,17 @@ fn city_is_urbania_shaped() {
         (20..=90).contains(&tall),
         "about 5% tall buildings, got {tall}"
     );
-    // Rotated 15°: a building's world box is wider than its footprint.
-    let e = objects[0].bounds.extent();
-    assert!(e.x > 10.0 && e.z > 10.0);
+    // Rotated 15° to the axes: the first facade edge of every building.
+    for b in &objects[..1000] {
+        let t = s.object_triangles(b)[0];
+        let edge = t[0] - t[1];
+        let angle = edge.z.atan2(edge.x).to_degrees().rem_euclid(90.0);
+        assert!(
+            (angle - 15.0).abs() < 0.01 || (angle - 75.0).abs() < 0.01,
+            "{}: {angle}°",
+            b.name
+        );
+    }
 }
 
 #[test]

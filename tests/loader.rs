@@ -229,15 +229,90 @@ fn primitives_that_are_not_triangles_are_skipped() {
     );
 }
 
+fn hierarchy(nodes: serde_json::Value) -> String {
+    serde_json::json!({"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": nodes}).to_string()
+}
+
 #[test]
 fn node_cycles_are_refused() {
-    let doc = serde_json::json!({
-        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
-        "nodes": [{"children": [1]}, {"children": [0]}]
-    })
-    .to_string();
-    match load_slice("c", doc.as_bytes(), None, Path::new("c.gltf")) {
-        Err(e) => assert!(e.to_string().contains("c.gltf"), "{e}"),
-        Ok(_) => panic!("a cyclic hierarchy loaded"),
+    let doc = hierarchy(serde_json::json!([{"children": [1]}, {"children": [0]}]));
+    let e = load_slice("c", doc.as_bytes(), None, Path::new("c.gltf"))
+        .expect_err("a cyclic hierarchy loaded");
+    assert!(
+        e.to_string().starts_with("c.gltf: node 0 is reached twice"),
+        "{e}"
+    );
+}
+
+#[test]
+fn shared_children_are_refused_instead_of_exploding() {
+    // 40 levels of two references to the same child would be 2^40 instances.
+    let nodes: Vec<_> = (0..40)
+        .map(|i| serde_json::json!({"children": [i + 1, i + 1]}))
+        .chain([serde_json::json!({})])
+        .collect();
+    let e = load_slice(
+        "d",
+        hierarchy(nodes.into()).as_bytes(),
+        None,
+        Path::new("d.gltf"),
+    )
+    .err()
+    .unwrap();
+    assert!(e.to_string().contains("reached twice"), "{e}");
+}
+
+#[test]
+fn a_long_chain_of_nodes_does_not_overflow_the_stack() {
+    let n = 20_000;
+    let nodes: Vec<_> = (0..n)
+        .map(|i| {
+            if i + 1 < n {
+                serde_json::json!({"children": [i + 1]})
+            } else {
+                serde_json::json!({})
+            }
+        })
+        .collect();
+    let s = load_slice(
+        "chain",
+        hierarchy(nodes.into()).as_bytes(),
+        None,
+        Path::new("chain.gltf"),
+    )
+    .unwrap();
+    assert_eq!(s.objects().len(), 0);
+}
+
+#[test]
+fn accessor_edge_cases_are_errors_not_panics() {
+    let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let base: serde_json::Value = serde_json::from_str(&tiny_gltf(&p, &[0, 1, 2], None)).unwrap();
+    let mut zero = base.clone();
+    zero["accessors"][1]["count"] = serde_json::json!(0);
+    let mut far = base.clone();
+    far["accessors"][0]["byteOffset"] = serde_json::json!(u64::MAX - 7);
+    let mut second_bin = base.clone();
+    second_bin["buffers"] = serde_json::json!([base["buffers"][0].clone(), {"byteLength": 4}]);
+    for (doc, want) in [(zero, "count 0"), (far, ""), (second_bin, "buffer 1")] {
+        match load_slice("t", doc.to_string().as_bytes(), None, Path::new("t.gltf")) {
+            Err(e) => assert!(e.to_string().contains(want), "{e}"),
+            Ok(_) => panic!("loaded: {doc}"),
+        }
+    }
+}
+
+#[test]
+fn short_glb_headers_are_errors_not_panics() {
+    for bytes in [
+        &b"glTF\x02\0\0\0\x0c\0\0\0"[..],
+        b"glTF\x02\0\0\0",
+        b"glTF\x02\0\0\0\xff\xff\0\0",
+    ] {
+        let e = load_slice("g", bytes, None, Path::new("g.glb"))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.starts_with("g.glb: "), "{e}");
     }
 }

@@ -10,6 +10,23 @@ use glam::DVec3;
 /// defined "right" (the sine of the angle between them).
 pub const PARALLEL_TOLERANCE: f64 = 1e-9;
 
+/// The largest tangent of a half field of view (about 89.99994°). Beyond it
+/// a frustum's side planes lie within rounding of the eye plane and its far
+/// corners overflow; DESIGN's widest view (fov 179°, aspect 100) has 1.1e4.
+pub const MAX_HALF_TANGENT: f64 = 1e6;
+
+/// `v` scaled to unit length, or `None` when it is zero or not finite.
+/// Scales by the largest component first, so `[1e200, 0, 0]` and
+/// `[1e-200, 0, 0]` are directions too (their squared length would overflow
+/// or underflow).
+pub fn direction(v: DVec3) -> Option<DVec3> {
+    let m = v.abs().max_element();
+    if !(m.is_finite() && m > 0.0) {
+        return None;
+    }
+    (v / m).try_normalize()
+}
+
 /// A perspective camera in world coordinates (glTF: metres, +Y up).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
@@ -92,10 +109,10 @@ impl Camera {
         ] {
             finite(field, v)?;
         }
-        if self.forward.try_normalize().is_none() {
+        if direction(self.forward).is_none() {
             return Err(CameraError::new("forward", "is a zero vector"));
         }
-        if self.up.try_normalize().is_none() {
+        if direction(self.up).is_none() {
             return Err(CameraError::new("up", "is a zero vector"));
         }
         if self.basis().is_none() {
@@ -111,6 +128,25 @@ impl Camera {
             return Err(CameraError::new(
                 "aspect",
                 format!("must be > 0, got {}", self.aspect),
+            ));
+        }
+        let (tx, ty) = self.half_tangents();
+        if ty > MAX_HALF_TANGENT {
+            return Err(CameraError::new(
+                "fov_y_deg",
+                format!(
+                    "is too close to 180 (at most {:.5})",
+                    2.0 * MAX_HALF_TANGENT.atan().to_degrees()
+                ),
+            ));
+        }
+        if tx > MAX_HALF_TANGENT {
+            return Err(CameraError::new(
+                "aspect",
+                format!(
+                    "makes the horizontal field of view too close to 180 degrees \
+                     (aspect × tan(fov_y/2) must be ≤ {MAX_HALF_TANGENT:e})"
+                ),
             ));
         }
         if self.near <= 0.0 {
@@ -138,8 +174,8 @@ impl Camera {
 
     /// The camera frame, or `None` when `forward` or `up` is zero or they are parallel.
     pub fn basis(&self) -> Option<CameraBasis> {
-        let forward = self.forward.try_normalize()?;
-        let up = self.up.try_normalize()?;
+        let forward = direction(self.forward)?;
+        let up = direction(self.up)?;
         let right = forward.cross(up);
         if right.length().partial_cmp(&PARALLEL_TOLERANCE) != Some(std::cmp::Ordering::Greater) {
             return None;
@@ -228,6 +264,50 @@ mod tests {
             ..Camera::default()
         };
         assert_eq!(cam.validate().unwrap_err().field, "viewport[1]");
+    }
+
+    #[test]
+    fn huge_and_tiny_directions_are_directions() {
+        for f in [
+            DVec3::new(1e200, 0.0, 0.0),
+            DVec3::new(1e-200, 0.0, 1e-201),
+            DVec3::splat(f64::MAX),
+        ] {
+            let cam = Camera {
+                forward: f,
+                ..Camera::default()
+            };
+            cam.validate().unwrap();
+            assert!((cam.basis().unwrap().forward.length() - 1.0).abs() < 1e-12);
+        }
+        let zero = Camera {
+            forward: DVec3::ZERO,
+            ..Camera::default()
+        };
+        assert_eq!(
+            zero.validate().unwrap_err().to_string(),
+            "forward is a zero vector"
+        );
+    }
+
+    #[test]
+    fn fields_of_view_near_180_are_refused_by_name() {
+        let wide = Camera {
+            aspect: 1e155,
+            ..Camera::default()
+        };
+        assert_eq!(wide.validate().unwrap_err().field, "aspect");
+        let tall = Camera {
+            fov_y_deg: 179.999_999_9,
+            ..Camera::default()
+        };
+        assert_eq!(tall.validate().unwrap_err().field, "fov_y_deg");
+        let widest_design_asks = Camera {
+            fov_y_deg: 179.0,
+            aspect: 100.0,
+            ..Camera::default()
+        };
+        widest_design_asks.validate().unwrap();
     }
 
     #[test]

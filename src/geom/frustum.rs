@@ -121,18 +121,26 @@ impl Frustum {
     /// Fails like [`Camera::validate`] on a camera that has no frustum.
     pub fn from_camera(camera: &Camera, origin: DVec3) -> Result<Frustum, CameraError> {
         camera.validate()?;
-        let basis = camera.basis().expect("validated camera has a basis");
+        // Validation leaves only cameras whose numbers are finite but may be
+        // huge (an eye at 1e300, far = 1e308): those fail here, by name.
+        let out_of_range = |field: &str| CameraError {
+            field: field.into(),
+            problem: "puts the frustum out of the range of f64".into(),
+        };
+        let basis = camera.basis().ok_or_else(|| out_of_range("up"))?;
         let eye = camera.eye - origin;
         let (tx, ty) = camera.half_tangents();
         let f = basis.forward;
-        let side = |n: DVec3| Plane::from_point_normal(eye, n).expect("side normals are non-zero");
+        let plane = |p: DVec3, n: DVec3| {
+            Plane::from_point_normal(p, n).filter(|pl| pl.normal.is_finite() && pl.d.is_finite())
+        };
         let planes = [
-            Plane::from_point_normal(eye + f * camera.near, f).expect("unit forward"),
-            Plane::from_point_normal(eye + f * camera.far, -f).expect("unit forward"),
-            side(f * tx + basis.right),
-            side(f * tx - basis.right),
-            side(f * ty + basis.up),
-            side(f * ty - basis.up),
+            plane(eye + f * camera.near, f).ok_or_else(|| out_of_range("eye"))?,
+            plane(eye + f * camera.far, -f).ok_or_else(|| out_of_range("far"))?,
+            plane(eye, f * tx + basis.right).ok_or_else(|| out_of_range("eye"))?,
+            plane(eye, f * tx - basis.right).ok_or_else(|| out_of_range("eye"))?,
+            plane(eye, f * ty + basis.up).ok_or_else(|| out_of_range("eye"))?,
+            plane(eye, f * ty - basis.up).ok_or_else(|| out_of_range("eye"))?,
         ];
         let corners = std::array::from_fn(|i| {
             let d = if i & 4 == 0 { camera.near } else { camera.far };
@@ -140,11 +148,7 @@ impl Frustum {
             let y = if i & 2 == 0 { -ty } else { ty };
             eye + (f + basis.right * x + basis.up * y) * d
         });
-        // A validated camera has finite corners up to far = f64::MAX / tan.
-        Frustum::from_planes_and_corners(planes, corners).ok_or_else(|| CameraError {
-            field: "far".into(),
-            problem: "puts the frustum's corners out of range".into(),
-        })
+        Frustum::from_planes_and_corners(planes, corners).ok_or_else(|| out_of_range("far"))
     }
 
     /// The frustum of a `clip_from_world` matrix with depth in `[0, 1]`
@@ -357,6 +361,27 @@ mod tests {
         for (p, q) in a.corners().iter().zip(m.corners()) {
             assert!((*p - *q).length() < 1e-6 * (1.0 + p.length()), "{p} vs {q}");
         }
+    }
+
+    #[test]
+    fn cameras_beyond_f64_range_are_errors_not_panics() {
+        let huge_far = Camera {
+            far: 1e308,
+            eye: DVec3::splat(1e308),
+            ..cam()
+        };
+        assert!(Frustum::from_camera(&huge_far, DVec3::ZERO).is_err());
+        let huge_far = Camera {
+            far: f64::MAX,
+            fov_y_deg: 170.0,
+            ..cam()
+        };
+        assert_eq!(
+            Frustum::from_camera(&huge_far, DVec3::ZERO)
+                .unwrap_err()
+                .field,
+            "far"
+        );
     }
 
     #[test]

@@ -11,7 +11,9 @@ mod plane;
 mod polygon;
 
 pub use aabb::Aabb;
-pub use camera::{Camera, CameraBasis, CameraError, PARALLEL_TOLERANCE};
+pub use camera::{
+    Camera, CameraBasis, CameraError, MAX_HALF_TANGENT, PARALLEL_TOLERANCE, direction,
+};
 pub use frustum::{ALL_PLANES, Frustum, PlaneMask};
 pub use plane::{Plane, Side};
 pub use polygon::{ConvexPolygon, Split};

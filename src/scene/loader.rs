@@ -59,39 +59,59 @@ pub fn load_slice(
         path: path.to_path_buf(),
         problem,
     };
-    let gltf =
+    check_glb_header(bytes).map_err(fail)?;
+    let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice(bytes).map_err(|e| fail(format!("not a valid glTF file: {e}")))?;
-    let buffers = load_buffers(&gltf, base_dir).map_err(fail)?;
-    let scene = gltf
-        .document
+    let buffers = load_buffers(&document, blob, base_dir).map_err(fail)?;
+    let scene = document
         .default_scene()
-        .or_else(|| gltf.document.scenes().next())
+        .or_else(|| document.scenes().next())
         .ok_or_else(|| fail("the file has no scene".into()))?;
     let mut builder = SceneBuilder::new(id);
-    let mut path_stack = Vec::new();
-    for root in scene.nodes() {
-        visit(
-            &root,
-            DMat4::IDENTITY,
-            &buffers,
-            &mut builder,
-            &mut path_stack,
-        )
-        .map_err(fail)?;
-    }
+    walk(&document, scene, &buffers, &mut builder).map_err(fail)?;
     Ok(builder.finish())
 }
 
-fn load_buffers(gltf: &gltf::Gltf, base_dir: Option<&Path>) -> Result<Vec<Vec<u8>>, String> {
+/// The `gltf` crate subtracts the header size from a GLB's declared length
+/// unchecked; a file shorter than a header with one chunk is refused first.
+fn check_glb_header(bytes: &[u8]) -> Result<(), String> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let word = |at: usize| {
+        bytes
+            .get(at..at + 4)
+            .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) as usize)
+    };
+    let declared = word(8).ok_or("the GLB header is cut short")?;
+    if declared < 20 || declared > bytes.len() {
+        return Err(format!(
+            "the GLB header declares {declared} bytes, but the file has {}",
+            bytes.len()
+        ));
+    }
+    Ok(())
+}
+
+/// Every buffer's bytes. Only buffer 0 may be the GLB binary chunk (glTF
+/// §4.4.3.3); it is moved, not copied.
+fn load_buffers(
+    doc: &gltf::Document,
+    mut blob: Option<Vec<u8>>,
+    base_dir: Option<&Path>,
+) -> Result<Vec<Vec<u8>>, String> {
     let mut out = Vec::new();
-    for buffer in gltf.document.buffers() {
+    for buffer in doc.buffers() {
         let data = match buffer.source() {
-            gltf::buffer::Source::Bin => gltf.blob.clone().ok_or_else(|| {
-                format!(
-                    "buffer {} refers to a GLB binary chunk that is missing",
-                    buffer.index()
-                )
+            gltf::buffer::Source::Bin if buffer.index() == 0 => blob.take().ok_or_else(|| {
+                "buffer 0 refers to a GLB binary chunk that is missing".to_string()
             })?,
+            gltf::buffer::Source::Bin => {
+                return Err(format!(
+                    "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
+                    buffer.index()
+                ));
+            }
             gltf::buffer::Source::Uri(uri) => read_uri(uri, base_dir)
                 .map_err(|e| format!("buffer {} ('{}'): {e}", buffer.index(), short(uri)))?,
         };
@@ -132,45 +152,56 @@ fn read_uri(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, String> {
     std::fs::read(dir.join(uri)).map_err(|e| format!("cannot read: {e}"))
 }
 
-fn visit(
-    node: &gltf::Node<'_>,
-    parent: DMat4,
+/// The pre-order walk of DESIGN "Scenes", with an explicit stack (a long
+/// chain of nodes cannot overflow the call stack). glTF nodes have at most one
+/// parent and no cycles; a node reached twice is refused, which also bounds
+/// the number of instances by the number of nodes.
+fn walk(
+    doc: &gltf::Document,
+    scene: gltf::Scene<'_>,
     buffers: &[Vec<u8>],
     builder: &mut SceneBuilder,
-    path_stack: &mut Vec<usize>,
 ) -> Result<(), String> {
-    if path_stack.contains(&node.index()) {
-        return Err(format!(
-            "node {} is its own ancestor (the hierarchy has a cycle)",
-            node.index()
-        ));
-    }
-    let local = node.transform().matrix().map(|c| c.map(f64::from));
-    let world = parent * DMat4::from_cols_array_2d(&local);
-    if !world.is_finite() {
-        return Err(format!(
-            "node {} has a transform that is not finite",
-            node.index()
-        ));
-    }
-    if let Some(mesh) = node.mesh() {
-        let name = node
-            .name()
-            .or(mesh.name())
-            .map(str::to_owned)
-            .unwrap_or_else(|| format!("object_{}", builder.object_count()));
-        builder.begin_object(name, occluder_hint(node));
-        for prim in mesh.primitives() {
-            let tris = read_triangles(&prim, buffers, &world)
-                .map_err(|e| format!("mesh {} primitive {}: {e}", mesh.index(), prim.index()))?;
-            builder.add_triangles(tris, is_see_through(&prim.material()));
+    let mut reached = vec![false; doc.nodes().len()];
+    // Roots pushed in reverse so they pop in file order; children likewise.
+    let mut stack: Vec<(gltf::Node<'_>, DMat4)> =
+        scene.nodes().map(|n| (n, DMat4::IDENTITY)).collect();
+    stack.reverse();
+    while let Some((node, parent)) = stack.pop() {
+        let seen = &mut reached[node.index()];
+        if *seen {
+            return Err(format!(
+                "node {} is reached twice: glTF nodes have at most one parent and no cycles",
+                node.index()
+            ));
         }
+        *seen = true;
+        let local = node.transform().matrix().map(|c| c.map(f64::from));
+        let world = parent * DMat4::from_cols_array_2d(&local);
+        if !world.is_finite() {
+            return Err(format!(
+                "node {} has a transform that is not finite",
+                node.index()
+            ));
+        }
+        if let Some(mesh) = node.mesh() {
+            let name = node
+                .name()
+                .or(mesh.name())
+                .map(str::to_owned)
+                .unwrap_or_else(|| format!("object_{}", builder.object_count()));
+            builder.begin_object(name, occluder_hint(&node));
+            for prim in mesh.primitives() {
+                let tris = read_triangles(&prim, buffers, &world).map_err(|e| {
+                    format!("mesh {} primitive {}: {e}", mesh.index(), prim.index())
+                })?;
+                builder.add_triangles(tris, is_see_through(&prim.material()));
+            }
+        }
+        let first_child = stack.len();
+        stack.extend(node.children().map(|c| (c, world)));
+        stack[first_child..].reverse();
     }
-    path_stack.push(node.index());
-    for child in node.children() {
-        visit(&child, world, buffers, builder, path_stack)?;
-    }
-    path_stack.pop();
     Ok(())
 }
 
@@ -293,11 +324,14 @@ fn check_accessor(a: &gltf::Accessor<'_>, buffers: &[Vec<u8>]) -> Result<(), Str
             )
         })?;
     if a.count() == 0 {
-        return Ok(());
+        // glTF requires count >= 1, and the gltf crate's reader computes count - 1.
+        return Err("has count 0".into());
     }
     let last = (a.count() - 1)
         .checked_mul(stride)
-        .and_then(|n| n.checked_add(view.offset() + a.offset() + elem))
+        .and_then(|n| n.checked_add(view.offset()))
+        .and_then(|n| n.checked_add(a.offset()))
+        .and_then(|n| n.checked_add(elem))
         .ok_or("size overflows")?;
     if last > view_end {
         return Err(format!(

@@ -1,6 +1,9 @@
-//! A JSON body extractor whose failures are [`ApiError`]s that say where.
+//! Request bodies: [`RawBody`] reads the bytes (within the body limit) and
+//! [`parse`] turns them into a type; both fail with [`ApiError`]s that say
+//! where. They are two steps so a handler can check the path (is there such
+//! a scene?) before it judges the body.
 //!
-//! It differs from `axum::Json` in three ways, each for a client's sake:
+//! Parsing differs from `axum::Json` in three ways, each for a client's sake:
 //! - errors name the field (`eye: invalid length 2, expected an array of
 //!   length 3`) through `serde_path_to_error`;
 //! - the bare tokens `NaN`, `Infinity` and `-Infinity`, which JavaScript-style
@@ -16,11 +19,11 @@ use serde::de::DeserializeOwned;
 
 use super::error::ApiError;
 
-/// A body parsed as `T`.
+/// A request body, read whole within the body limit.
 #[derive(Debug)]
-pub struct JsonBody<T>(pub T);
+pub struct RawBody(pub Bytes);
 
-impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
+impl<S: Send + Sync> FromRequest<S> for RawBody {
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
@@ -32,7 +35,7 @@ impl<S: Send + Sync, T: DeserializeOwned> FromRequest<S> for JsonBody<T> {
                 ApiError::MalformedJson(format!("cannot read the body: {r}"))
             }
         })?;
-        parse(&bytes).map(JsonBody)
+        Ok(RawBody(bytes))
     }
 }
 

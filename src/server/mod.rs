@@ -21,6 +21,7 @@ use axum::extract::DefaultBodyLimit;
 use axum::routing::{get, post};
 use tokio::net::TcpListener;
 use tower::ServiceBuilder;
+use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::trace::TraceLayer;
 
 pub use error::ApiError;
@@ -49,6 +50,9 @@ pub fn app(state: AppState) -> Router {
                 }))
                 .timeout(limits.request_timeout),
         )
+        // A panic in a handler is a bug; the client still gets a JSON 500 and
+        // the server keeps serving everyone else.
+        .layer(CatchPanicLayer::custom(routes::panicked))
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
             metrics::track,

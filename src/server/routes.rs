@@ -9,7 +9,7 @@ use axum::http::{Method, header};
 use axum::response::IntoResponse;
 
 use super::error::ApiError;
-use super::extract::JsonBody;
+use super::extract::{RawBody, parse};
 use super::state::AppState;
 use super::wire::{Bounds, ObjectInfo, SceneInfo, ViewRequest, VisibleResponse};
 use crate::cull::{View, VisibleSet};
@@ -30,7 +30,7 @@ pub async fn scenes(State(state): State<AppState>) -> Json<Vec<SceneInfo>> {
                     id: s.id.clone(),
                     objects: s.objects().len(),
                     triangles: s.triangle_count(),
-                    bounds: Bounds::new(s.to_world(&s.bounds())),
+                    bounds: (!s.bounds().is_empty()).then(|| Bounds::new(s.to_world(&s.bounds()))),
                     up: s.up().to_array(),
                     methods: m.names().into_iter().map(String::from).collect(),
                 }
@@ -61,9 +61,10 @@ pub async fn objects(
 pub async fn visible(
     State(state): State<AppState>,
     Path(id): Path<String>,
-    JsonBody(req): JsonBody<ViewRequest>,
+    RawBody(body): RawBody,
 ) -> Result<Json<VisibleResponse>, ApiError> {
     let methods = state.scene(&id)?;
+    let req: ViewRequest = parse(&body)?;
     let spec = req.method_spec()?;
     let view = View::new(req.camera(), methods.scene())?;
     let mut out = VisibleSet::new();
@@ -113,4 +114,14 @@ pub async fn timed_out(state: AppState, err: tower::BoxError) -> ApiError {
     } else {
         ApiError::Internal(err.to_string())
     }
+}
+
+/// For `CatchPanicLayer`: a handler that panicked answers 500 `internal`.
+pub fn panicked(err: Box<dyn std::any::Any + Send + 'static>) -> axum::response::Response {
+    let detail = err
+        .downcast_ref::<String>()
+        .map(String::as_str)
+        .or_else(|| err.downcast_ref::<&str>().copied())
+        .unwrap_or("a panic with no message");
+    ApiError::Internal(format!("handler panicked: {detail}")).into_response()
 }

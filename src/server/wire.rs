@@ -156,8 +156,8 @@ pub struct SceneInfo {
     pub objects: usize,
     /// Number of triangles.
     pub triangles: usize,
-    /// World bounds.
-    pub bounds: Bounds,
+    /// World bounds; `null` for a scene without triangles.
+    pub bounds: Option<Bounds>,
     /// The up axis.
     pub up: [f32; 3],
     /// Methods it supports (`auto` is always accepted besides).

@@ -18,6 +18,8 @@
 
 use std::ops::Range;
 
+use glam::Vec3;
+
 use crate::geom::Aabb;
 use crate::scene::Scene;
 
@@ -141,9 +143,8 @@ impl KdTree {
     ///
     /// Children partition their parent's cell at the split; `bounds` is the
     /// union of the boxes below clipped to the cell, `cost` their triangles;
-    /// reference ranges nest; every object with a box is reachable, and
-    /// every leaf its box reaches (by the build's own distribution rule)
-    /// references it; leaves respect the limits unless nothing could split.
+    /// reference ranges nest; every sample point of every object's box lies
+    /// in a leaf that references the object.
     pub fn validate(&self, scene: &Scene) -> Result<(), String> {
         let objects = scene.objects();
         let Some(root) = self.root() else {
@@ -156,36 +157,57 @@ impl KdTree {
             if !root.cell.contains(&o.bounds) {
                 return Err(format!("root cell does not hold object {}", o.id));
             }
-            self.check_reaches(0, o.id, &o.bounds)?;
+            self.check_covered(o.id, &o.bounds)?;
         }
         self.check_node(0, scene, 0)
     }
 
-    fn check_reaches(&self, node: usize, id: u32, b: &Aabb) -> Result<(), String> {
-        let n = &self.nodes[node];
-        match n.kind {
-            NodeKind::Leaf => {
-                if self.node_refs(n).contains(&id) {
-                    Ok(())
-                } else {
-                    Err(format!(
-                        "leaf {node} does not reference object {id} whose box reaches it"
-                    ))
-                }
+    /// Checks that every sample point of `b` (corners, centre, face centres)
+    /// lies in the closed cell of a leaf that references `id`. Points are
+    /// located by their coordinates alone (on a split plane: both sides), not
+    /// by the build's distribution rule, so a wrong rule fails here.
+    fn check_covered(&self, id: u32, b: &Aabb) -> Result<(), String> {
+        let c = b.center();
+        let mut points: Vec<Vec3> = b.corners().to_vec();
+        points.push(c);
+        for axis in 0..3 {
+            for end in [b.min[axis], b.max[axis]] {
+                let mut p = c;
+                p[axis] = end;
+                points.push(p);
             }
+        }
+        let mut leaves = Vec::new();
+        for p in points {
+            leaves.clear();
+            self.leaves_containing(0, p, &mut leaves);
+            if !leaves
+                .iter()
+                .any(|&l| self.node_refs(&self.nodes[l]).contains(&id))
+            {
+                return Err(format!(
+                    "point {p} of object {id} lies in no leaf that references it (leaves {leaves:?})"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn leaves_containing(&self, node: usize, p: Vec3, out: &mut Vec<usize>) {
+        match self.nodes[node].kind {
+            NodeKind::Leaf => out.push(node),
             NodeKind::Inner {
                 axis,
                 split,
                 children,
             } => {
-                let (lo, hi) = (b.min[axis as usize], b.max[axis as usize]);
-                if goes_low(lo, split) {
-                    self.check_reaches(children[0] as usize, id, b)?;
+                let v = p[axis as usize];
+                if v <= split {
+                    self.leaves_containing(children[0] as usize, p, out);
                 }
-                if goes_high(hi, lo, split) {
-                    self.check_reaches(children[1] as usize, id, b)?;
+                if v >= split {
+                    self.leaves_containing(children[1] as usize, p, out);
                 }
-                Ok(())
             }
         }
     }
