@@ -1,0 +1,282 @@
+//! `pvsd eval`: every method's speed against its accuracy, on the same frames.
+//!
+//! A walkthrough ([`walk`]) gives the cameras. For each frame the ground
+//! truth is rendered once ([`Truth`]); each method then culls the frame with
+//! its own client cache carried from frame to frame, as a session would, and
+//! its answer is compared with the truth. The metrics are DESIGN's ("`pvsd
+//! eval --json` output"), plus a frame-cost model after the "Speedup" column
+//! of Bittner et al.'s Table 2: cull time + PVS triangles × a cost per
+//! triangle, so the report shows when culling pays.
+
+mod report;
+mod walk;
+
+use std::sync::Arc;
+use std::time::Instant;
+
+pub use report::{EvalReport, MethodReport, write_svg};
+pub use walk::{WalkError, WalkKind, WalkParams, walk};
+
+use crate::cull::{
+    ClientCache, Culler, MethodError, MethodOptions, MethodSpec, SceneMethods, View, VisibleSet,
+};
+use crate::geom::Camera;
+use crate::scene::Scene;
+use crate::truth::Truth;
+
+/// What to evaluate on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EvalParams {
+    /// The walkthrough.
+    pub walk: WalkParams,
+    /// Modelled cost of drawing one triangle, nanoseconds (frame cost =
+    /// cull time + PVS triangles × this).
+    pub cost_per_triangle_ns: f64,
+}
+
+impl Default for EvalParams {
+    fn default() -> Self {
+        // ~2 ns a triangle: a mid-range GPU's throughput for small meshes.
+        EvalParams {
+            walk: WalkParams::default(),
+            cost_per_triangle_ns: 2.0,
+        }
+    }
+}
+
+/// Why an evaluation could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// A method or its options were refused.
+    #[error(transparent)]
+    Method(#[from] MethodError),
+    /// No walkthrough could be made.
+    #[error(transparent)]
+    Walk(#[from] WalkError),
+    /// A camera handed to [`run`] is unusable.
+    #[error("frame {frame}: {problem}")]
+    Camera {
+        /// The frame.
+        frame: usize,
+        /// What is wrong.
+        problem: String,
+    },
+}
+
+/// One method under evaluation: a label, the method and a client cache.
+pub struct Contender {
+    /// How the report names it (`frustum`, `gpu:contribution=0.001`).
+    pub label: String,
+    /// Its options, echoed in the report.
+    pub options: MethodOptions,
+    method: Arc<dyn Culler>,
+    cache: ClientCache,
+}
+
+impl Contender {
+    /// A contender from any culler (tests hand in deliberately broken ones).
+    pub fn new(
+        label: impl Into<String>,
+        method: Arc<dyn Culler>,
+        options: MethodOptions,
+    ) -> Result<Self, MethodError> {
+        let cache = method.new_cache(&options)?;
+        Ok(Contender {
+            label: label.into(),
+            options,
+            method,
+            cache,
+        })
+    }
+
+    /// A contender for a method of `methods` named by `spec`.
+    pub fn from_spec(methods: &SceneMethods, spec: &MethodSpec) -> Result<Self, MethodError> {
+        let (method, cache) = methods.prepare_client(spec)?;
+        Ok(Contender {
+            label: spec.to_string(),
+            options: spec.options.clone(),
+            method,
+            cache,
+        })
+    }
+}
+
+/// Per-frame measurements of one method.
+#[derive(Clone, Debug, Default)]
+struct Tally {
+    cull_us: Vec<f64>,
+    pvs: u64,
+    pvs_triangles: u64,
+    in_frustum: u64,
+    misses: u64,
+    ties: u64,
+    wrong_pixels: u64,
+    /// The first few `(frame, object)` misses, to say where to look.
+    examples: Vec<(usize, u32)>,
+}
+
+/// Runs `methods` (specs resolved on `scene_methods`) over the walkthrough.
+pub fn evaluate(
+    scene_methods: &SceneMethods,
+    specs: &[MethodSpec],
+    params: &EvalParams,
+    progress: impl FnMut(usize),
+) -> Result<EvalReport, EvalError> {
+    let contenders = specs
+        .iter()
+        .map(|s| Contender::from_spec(scene_methods, s))
+        .collect::<Result<Vec<_>, _>>()?;
+    let cameras = walk(scene_methods.scene(), &params.walk)?;
+    run(
+        scene_methods.scene(),
+        contenders,
+        &cameras,
+        params,
+        progress,
+    )
+}
+
+/// Runs contenders over given cameras: the core of [`evaluate`], open to any
+/// [`Culler`] so tests can prove the accounting catches a broken method.
+pub fn run(
+    scene: &Scene,
+    mut contenders: Vec<Contender>,
+    cameras: &[Camera],
+    params: &EvalParams,
+    mut progress: impl FnMut(usize),
+) -> Result<EvalReport, EvalError> {
+    let mut tallies = vec![Tally::default(); contenders.len()];
+    let (mut truth_total, mut tie_total, mut truth_ms) =
+        (0u64, 0u64, Vec::with_capacity(cameras.len()));
+    let mut pixels = 0u64;
+    let mut out = VisibleSet::new();
+    for (frame, camera) in cameras.iter().enumerate() {
+        let started = Instant::now();
+        let bad_camera = |e: crate::geom::CameraError| EvalError::Camera {
+            frame,
+            problem: e.to_string(),
+        };
+        let truth = Truth::render(scene, camera).map_err(bad_camera)?;
+        let view = View::new(*camera, scene).map_err(bad_camera)?;
+        truth_ms.push(started.elapsed().as_secs_f64() * 1e3);
+        let (visible, ties) = (truth.visible(), truth.ties());
+        truth_total += visible.len() as u64;
+        tie_total += ties.len() as u64;
+        pixels += truth.pixel_count();
+        for (c, tally) in contenders.iter_mut().zip(&mut tallies) {
+            let stats = c.method.cull(&view, &mut c.cache, &mut out);
+            let ids = out.ids();
+            tally.cull_us.push(stats.cull_us);
+            tally.pvs += ids.len() as u64;
+            tally.in_frustum += stats.in_frustum;
+            tally.pvs_triangles += ids
+                .iter()
+                .map(|&i| scene.objects()[i as usize].triangle_count() as u64)
+                .sum::<u64>();
+            for &v in &visible {
+                if ids.binary_search(&v).is_err() {
+                    tally.misses += 1;
+                    if tally.examples.len() < 8 {
+                        tally.examples.push((frame, v));
+                    }
+                }
+            }
+            tally.ties += ties
+                .iter()
+                .filter(|t| ids.binary_search(t).is_err())
+                .count() as u64;
+            tally.wrong_pixels += truth.wrong_pixels(ids);
+        }
+        progress(frame + 1);
+    }
+    let frames = cameras.len().max(1) as f64;
+    let mean_truth = truth_total as f64 / frames;
+    let mut methods: Vec<MethodReport> = contenders
+        .iter()
+        .zip(tallies)
+        .map(|(c, t)| {
+            let mean_pvs = t.pvs as f64 / frames;
+            let mean_in_frustum = t.in_frustum as f64 / frames;
+            let mean_cull = t.cull_us.iter().sum::<f64>() / frames;
+            let mean_pvs_triangles = t.pvs_triangles as f64 / frames;
+            MethodReport {
+                method: c.label.clone(),
+                options: c
+                    .options
+                    .iter()
+                    .map(|(k, v)| (k.to_string(), v.to_string()))
+                    .collect(),
+                conservative: c.cache.is_conservative(),
+                median_cull_us: percentile(&t.cull_us, 0.5),
+                p99_cull_us: percentile(&t.cull_us, 0.99),
+                mean_pvs,
+                mean_truth,
+                mean_in_frustum,
+                misses: t.misses,
+                ties: t.ties,
+                overestimation: ratio(mean_pvs, mean_truth),
+                culled_in_frustum_share: if mean_in_frustum > 0.0 {
+                    1.0 - mean_pvs / mean_in_frustum
+                } else {
+                    0.0
+                },
+                wrong_pixel_share: ratio(t.wrong_pixels as f64, pixels as f64),
+                mean_pvs_triangles,
+                mean_frame_cost_us: mean_cull
+                    + mean_pvs_triangles * params.cost_per_triangle_ns * 1e-3,
+                speedup: None,
+                miss_examples: t.examples,
+            }
+        })
+        .collect();
+    // Speedup against frustum culling, when it ran (Bittner et al., Table 2).
+    if let Some(base) = methods
+        .iter()
+        .find(|m| m.method == "frustum")
+        .map(|m| m.mean_frame_cost_us)
+    {
+        for m in &mut methods {
+            m.speedup = Some(ratio(base, m.mean_frame_cost_us));
+        }
+    }
+    Ok(EvalReport {
+        scene: scene.id.clone(),
+        walk: params.walk.kind.name().to_string(),
+        frames: cameras.len(),
+        resolution: params.walk.viewport,
+        cost_per_triangle_ns: params.cost_per_triangle_ns,
+        mean_tie_objects: tie_total as f64 / frames,
+        median_truth_ms: percentile(&truth_ms, 0.5),
+        methods,
+    })
+}
+
+fn ratio(a: f64, b: f64) -> f64 {
+    if b > 0.0 { a / b } else { 0.0 }
+}
+
+/// The `q` quantile (nearest rank) of unsorted values; 0 for none.
+fn percentile(values: &[f64], q: f64) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let rank = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len());
+    v[rank - 1]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::percentile;
+
+    #[test]
+    fn nearest_rank_percentiles() {
+        let v: Vec<f64> = (1..=100).map(f64::from).collect();
+        assert_eq!(percentile(&v, 0.5), 50.0);
+        assert_eq!(percentile(&v, 0.99), 99.0);
+        assert_eq!(percentile(&[3.0, 1.0, 2.0], 0.5), 2.0);
+        assert_eq!(percentile(&[7.0], 0.99), 7.0);
+        assert_eq!(percentile(&[], 0.5), 0.0);
+    }
+}
