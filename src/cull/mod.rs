@@ -76,6 +76,11 @@ impl VisibleSet {
         self.ids.extend_from_slice(ids);
     }
 
+    /// Keeps only the ids `keep` accepts (aggressive methods drop objects this way).
+    pub fn retain(&mut self, keep: impl FnMut(&u32) -> bool) {
+        self.ids.retain(keep);
+    }
+
     /// Sorts and removes repeats: an object held by two kd leaves is reported once.
     pub fn finish(&mut self) {
         self.ids.sort_unstable();

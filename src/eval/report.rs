@@ -179,12 +179,15 @@ pub fn write_svg(report: &EvalReport, path: &Path) -> Result<(), String> {
             } else {
                 m.method.clone()
             };
+            // The label sits beside its marker, not on it.
+            let text = || Text::new(label.clone(), (8, -18), ("sans-serif", 14).into_font());
             if m.misses > 0 {
-                chart.draw_series([Cross::new((x, y), 6, RED.stroke_width(2))])?;
+                let cross = Cross::new((0, 0), 6, RED.stroke_width(2));
+                chart.draw_series([EmptyElement::at((x, y)) + cross + text()])?;
             } else {
-                chart.draw_series([Circle::new((x, y), 5, BLACK.filled())])?;
+                let dot = Circle::new((0, 0), 5, BLACK.filled());
+                chart.draw_series([EmptyElement::at((x, y)) + dot + text()])?;
             }
-            chart.draw_series([Text::new(label, (x, y), ("sans-serif", 14).into_font())])?;
         }
         chart
             .configure_series_labels()

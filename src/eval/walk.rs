@@ -204,7 +204,7 @@ impl FreeSpace {
     ) -> FreeSpace {
         // Only cells whose floor is this floor can be stood in: not the void
         // around a rotated city, not a lower arcade seen from a raised courtyard.
-        let mut blocked: Vec<bool> = top.iter().map(|&t| !((t - floor).abs() <= STEP)).collect();
+        let mut blocked: Vec<bool> = top.iter().map(|&t| (t - floor).abs() > STEP).collect();
         let (slab_lo, slab_hi) = (floor + 0.3, floor + eye_height + 0.2);
         let below = Plane {
             normal: DVec3::Y,
@@ -344,14 +344,16 @@ impl FreeSpace {
             )));
         }
         // Start in the largest connected free region (the atrium, the street
-        // grid, the rooms joined by doors, not a niche behind a wall), in its
-        // most open part: clearance at least 0.8 of the best there is.
+        // grid, the rooms joined by doors, not a niche behind a wall), at a
+        // seeded random place with 2 m of clearance (or 0.8 of the best there
+        // is, if less): a street rather than a gap between two houses, and
+        // not always the one emptiest field of the city.
         let region = self.largest_region();
         let best = region
             .iter()
             .map(|&i| self.clearance[i])
             .fold(0.0, f64::max);
-        let want = (best * 0.8).max(CLEARANCE);
+        let want = (best * 0.8).clamp(CLEARANCE, 2.0);
         let open: Vec<usize> = region
             .into_iter()
             .filter(|&i| self.clearance[i] >= want)
@@ -460,7 +462,7 @@ fn floor_tops(scene: &Scene, lo: DVec3, hi: DVec3, cell: f64, nx: usize, nz: usi
     };
     for t in scene.triangles() {
         let n = (t[1] - t[0]).cross(t[2] - t[0]);
-        if !(n.length() > 0.0) || n.y.abs() < 0.95 * n.length() {
+        if n.length() == 0.0 || n.y.abs() < 0.95 * n.length() {
             continue;
         }
         let y = (t[0].y + t[1].y + t[2].y) as f64 / 3.0;

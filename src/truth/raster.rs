@@ -270,8 +270,8 @@ fn fill(
         (b.0 - a.0) * (py - a.1) - (b.1 - a.1) * (px - a.0)
     };
     let area = edge(s[0], s[1], s[2].0, s[2].1);
-    if !(area.abs() > 0.0) {
-        return; // no area, or not finite: covers no pixel centre
+    if area == 0.0 || !area.is_finite() {
+        return; // no area (covers no pixel centre), or beyond f64's range
     }
     let sign = area.signum();
     let (minx, maxx) = (

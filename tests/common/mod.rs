@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use glam::DVec3;
+use pvsd::cull::{MethodSpec, SceneMethods};
+use pvsd::eval::{Contender, EvalParams, WalkKind, WalkParams};
 use pvsd::geom::Camera;
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
 use pvsd::scene::{Scene, load_path, load_slice};
@@ -90,4 +92,80 @@ pub fn random_unit(rng: &mut ChaCha8Rng) -> DVec3 {
 
 pub fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
+}
+
+/// Image size of the ground truth in the conservativeness check: small
+/// enough to be quick, large enough that a missed object of a few pixels at
+/// 1024×768 still covers a pixel centre here at least as often as not.
+pub const CHECK_VIEWPORT: [u32; 2] = [256, 160];
+
+/// The shared conservativeness check (DESIGN "Accuracy"): runs a fresh
+/// contender from `make` over each walk of `scene` against ground truth, and
+/// reports every walk where a method that claims to be conservative dropped
+/// a truth-visible object. Every method's tests go through it.
+pub fn check_conservative(
+    scene: &Arc<Scene>,
+    walks: &[WalkKind],
+    frames: usize,
+    make: impl Fn(&SceneMethods) -> Contender,
+) -> Result<(), String> {
+    let methods = SceneMethods::prepare(scene.clone());
+    let mut failures = Vec::new();
+    for &kind in walks {
+        let params = EvalParams {
+            walk: WalkParams {
+                kind,
+                frames,
+                seed: 7,
+                viewport: CHECK_VIEWPORT,
+                ..WalkParams::default()
+            },
+            ..EvalParams::default()
+        };
+        let cameras = pvsd::eval::walk(scene, &params.walk)
+            .map_err(|e| format!("{} {}: {e}", scene.id, kind.name()))?;
+        let report = pvsd::eval::run(scene, vec![make(&methods)], &cameras, &params, |_| {})
+            .map_err(|e| e.to_string())?;
+        let m = &report.methods[0];
+        assert!(
+            m.mean_truth > 0.0,
+            "{} {}: the walk sees nothing, so it checks nothing",
+            scene.id,
+            kind.name()
+        );
+        if m.conservative && m.misses > 0 {
+            let examples: Vec<String> = m
+                .miss_examples
+                .iter()
+                .map(|&(frame, id)| {
+                    format!(
+                        "frame {frame}: {} ({id})",
+                        scene.objects()[id as usize].name
+                    )
+                })
+                .collect();
+            failures.push(format!(
+                "{} {} walk: {} misses by {}; {}",
+                scene.id,
+                kind.name(),
+                m.misses,
+                m.method,
+                examples.join(", ")
+            ));
+        }
+    }
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        Err(failures.join("\n"))
+    }
+}
+
+/// [`check_conservative`] for a method named by its spec (`frustum`, `occlusion_tree:k=32`).
+pub fn assert_conservative(scene: &Arc<Scene>, method: &str, walks: &[WalkKind], frames: usize) {
+    let spec: MethodSpec = method.parse().unwrap();
+    check_conservative(scene, walks, frames, |m| {
+        Contender::from_spec(m, &spec).unwrap()
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
 }
