@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
-use common::{city_scene, shared_scene};
+use common::{city_scene, fetch, shared_scene};
 use http_body_util::BodyExt;
 use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
 use pvsd::geom::Camera;
@@ -447,29 +447,15 @@ async fn real_socket_serves_survives_bad_input_and_shuts_down() {
     }));
     let client = reqwest::Client::new();
     let url = |p: &str| format!("http://{addr}{p}");
-    let scenes: Vec<SceneInfo> = client
-        .get(url("/scenes"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let scenes: Vec<SceneInfo> = fetch(client.get(url("/scenes"))).await;
     assert_eq!(
         scenes.iter().map(|s| s.id.as_str()).collect::<Vec<_>>(),
         ["Sponza", "city"]
     );
     // Inside Sponza's atrium, looking along it.
     let view = json!({"eye": [0.0, 6.0, 0.0], "forward": [1.0, 0.0, 0.0]});
-    let first: VisibleResponse = client
-        .post(url("/scenes/Sponza/visible"))
-        .json(&view)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let first: VisibleResponse =
+        fetch(client.post(url("/scenes/Sponza/visible")).json(&view)).await;
     assert!(first.visible.len() > 10, "{first:?}");
     let bad = client
         .post(url("/scenes/Sponza/visible"))
@@ -486,15 +472,8 @@ async fn real_socket_serves_survives_bad_input_and_shuts_down() {
     if let Ok(r) = huge {
         assert_eq!(r.status(), 413);
     }
-    let again: VisibleResponse = client
-        .post(url("/scenes/Sponza/visible"))
-        .json(&view)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let again: VisibleResponse =
+        fetch(client.post(url("/scenes/Sponza/visible")).json(&view)).await;
     assert_eq!(again.visible, first.visible);
     // Many clients at once.
     let mut tasks = Vec::new();

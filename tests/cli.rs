@@ -7,7 +7,7 @@ use std::io::{BufRead, BufReader};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::shared_scene_path;
+use common::{fetch, shared_scene_path};
 use serde_json::Value;
 
 fn pvsd() -> Command {
@@ -176,24 +176,13 @@ fn serve_answers_and_stops_on_sigterm() {
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
         let c = reqwest::Client::new();
-        let scenes: Value = c
-            .get(format!("http://{addr}/scenes"))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
+        let scenes: Value = fetch(c.get(format!("http://{addr}/scenes"))).await;
         assert_eq!(scenes[0]["id"], "city", "the built-in city");
-        let v: Value = c
-            .post(format!("http://{addr}/scenes/city/visible"))
-            .body(r#"{"eye":[60,1.7,-20],"forward":[1,0,0.3]}"#)
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
+        let v: Value = fetch(
+            c.post(format!("http://{addr}/scenes/city/visible"))
+                .body(r#"{"eye":[60,1.7,-20],"forward":[1,0,0.3]}"#),
+        )
+        .await;
         assert!(!v["visible"].as_array().unwrap().is_empty(), "{v}");
     });
     let status = Command::new("kill")

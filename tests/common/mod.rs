@@ -169,3 +169,9 @@ pub fn assert_conservative(scene: &Arc<Scene>, method: &str, walks: &[WalkKind],
     })
     .unwrap_or_else(|e| panic!("{e}"));
 }
+
+/// Sends a request to a real server and decodes its JSON answer.
+pub async fn fetch<T: serde::de::DeserializeOwned>(req: reqwest::RequestBuilder) -> T {
+    let res = req.send().await.expect("the server answers");
+    res.json().await.expect("a JSON answer")
+}
