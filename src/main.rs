@@ -368,7 +368,9 @@ fn query(args: QueryArgs) -> anyhow::Result<()> {
             stats.method,
             stats.visible,
             methods.scene().objects().len(),
-            stats.in_frustum,
+            stats
+                .in_frustum
+                .map_or("uncounted".to_string(), |n| n.to_string()),
             stats.nodes_tested,
             stats.cull_us
         );

@@ -57,7 +57,10 @@ async fn health_scenes_and_objects() {
     assert_eq!(scenes.len(), 1);
     assert_eq!((scenes[0].id.as_str(), scenes[0].objects), ("city", 201));
     assert_eq!(scenes[0].up, [0.0, 1.0, 0.0]);
-    assert_eq!(scenes[0].methods, vec!["frustum"]);
+    assert_eq!(
+        scenes[0].methods,
+        vec!["frustum", "occlusion_tree", "supporting_planes"]
+    );
     let (status, body) = call(&s, "GET", "/scenes/city/objects", None).await;
     assert_eq!(status, StatusCode::OK);
     let objects: Vec<ObjectInfo> = serde_json::from_value(body).unwrap();

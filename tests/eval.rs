@@ -36,7 +36,7 @@ impl CullMethod for Fixed {
         out.extend_from_slice(&self.0);
         CullCounters {
             nodes_tested: 0,
-            in_frustum: Some(4),
+            in_frustum: pvsd::cull::InFrustum::Counted(4),
         }
     }
 }
@@ -125,10 +125,12 @@ fn metrics_by_hand_on_a_tiny_scene() {
     );
     assert_eq!(f.speedup, Some(1.0));
     // fixed {wall, behind_camera}: misses `front` in each of 3 frames.
-    assert_eq!((x.mean_pvs, x.misses, x.mean_in_frustum), (2.0, 3, 4.0));
+    // In-frustum is counted by eval for everyone (3), not taken from the
+    // method's own claim (4).
+    assert_eq!((x.mean_pvs, x.misses, x.mean_in_frustum), (2.0, 3, 3.0));
     assert!(!x.conservative);
     assert_eq!(x.overestimation, 1.0);
-    assert_eq!(x.culled_in_frustum_share, 0.5);
+    assert_eq!(x.culled_in_frustum_share, 1.0 - 2.0 / 3.0);
     assert_eq!(x.mean_pvs_triangles, 14.0);
     let front_pixels = truth.pixels(2) as f64;
     assert!(front_pixels > 0.0);

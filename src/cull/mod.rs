@@ -12,7 +12,11 @@
 //! drops an object whose box-and-triangles could show a pixel.
 
 pub mod frustum;
+mod hierarchy;
+pub mod occluder;
+pub mod occlusion_tree;
 mod spec;
+pub mod supporting_planes;
 
 use std::any::Any;
 use std::sync::Arc;
@@ -103,14 +107,26 @@ impl VisibleSet {
     }
 }
 
+/// What a method knows of the objects inside the frustum.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum InFrustum {
+    /// Its answer is the in-frustum set (frustum culling).
+    #[default]
+    Answer,
+    /// It counted them on the way.
+    Counted(u64),
+    /// It does not know: an occlusion method drops hidden subtrees without
+    /// counting what of them is in the frustum.
+    Unknown,
+}
+
 /// What a method counted while culling one view.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CullCounters {
     /// Hierarchy nodes whose box was tested.
     pub nodes_tested: u64,
-    /// Objects inside the frustum, when the method knows it apart from its
-    /// answer; `None` when its answer *is* the in-frustum set.
-    pub in_frustum: Option<u64>,
+    /// Objects inside the frustum, as far as the method knows.
+    pub in_frustum: InFrustum,
 }
 
 /// What one culled view cost and found (DESIGN: the answer's `stats`).
@@ -122,8 +138,8 @@ pub struct CullStats {
     pub cull_us: f64,
     /// Hierarchy nodes tested.
     pub nodes_tested: u64,
-    /// Objects inside the frustum.
-    pub in_frustum: u64,
+    /// Objects inside the frustum; `None` when the method does not count them.
+    pub in_frustum: Option<u64>,
     /// Objects in the answer.
     pub visible: u64,
 }
@@ -219,7 +235,11 @@ impl<M: CullMethod> Culler for M {
             method: CullMethod::name(self),
             cull_us,
             nodes_tested: counters.nodes_tested,
-            in_frustum: counters.in_frustum.unwrap_or(out.len() as u64),
+            in_frustum: match counters.in_frustum {
+                InFrustum::Answer => Some(out.len() as u64),
+                InFrustum::Counted(n) => Some(n),
+                InFrustum::Unknown => None,
+            },
             visible: out.len() as u64,
         }
     }
@@ -238,8 +258,24 @@ impl SceneMethods {
     /// Prepares what `scene`'s methods need and nothing more.
     pub fn prepare(scene: Arc<Scene>) -> SceneMethods {
         let tree = Arc::new(KdTree::build(&scene, KdTreeParams::default()));
-        let methods: Vec<Arc<dyn Culler>> =
-            vec![Arc::new(frustum::FrustumCulling::new(scene.clone(), tree))];
+        let mut methods: Vec<Arc<dyn Culler>> = vec![Arc::new(frustum::FrustumCulling::new(
+            scene.clone(),
+            tree.clone(),
+        ))];
+        // The occlusion methods only where the scene has occluders; no
+        // occluder data is kept otherwise.
+        if let Some(occluders) = occluder::Occluders::find(&scene, &tree).map(Arc::new) {
+            methods.push(Arc::new(occlusion_tree::OcclusionTreeCulling::new(
+                scene.clone(),
+                tree.clone(),
+                occluders.clone(),
+            )));
+            methods.push(Arc::new(supporting_planes::SupportingPlanesCulling::new(
+                scene.clone(),
+                tree,
+                occluders,
+            )));
+        }
         SceneMethods { scene, methods }
     }
 

@@ -152,6 +152,11 @@ impl OptionReader<'_> {
         }
     }
 
+    /// The method whose options these are.
+    pub fn method(&self) -> &'static str {
+        self.method
+    }
+
     /// Refuses any option that is not among the known ones.
     pub fn finish(self) -> Result<(), MethodError> {
         match self

@@ -17,6 +17,7 @@ use std::time::Instant;
 pub use report::{EvalReport, MethodReport, write_svg};
 pub use walk::{WalkError, WalkKind, WalkParams, walk};
 
+use crate::cull::frustum::FrustumCulling;
 use crate::cull::{
     ClientCache, Culler, MethodError, MethodOptions, MethodSpec, SceneMethods, View, VisibleSet,
 };
@@ -163,12 +164,15 @@ pub fn run(
         truth_total += visible.len() as u64;
         tie_total += ties.len() as u64;
         pixels += truth.pixel_count();
+        // The in-frustum set is the walk's, not a method's: counted once,
+        // exactly, outside any method's timing.
+        let in_frustum = FrustumCulling::reference(scene, &view.frustum).len() as u64;
         for (c, tally) in contenders.iter_mut().zip(&mut tallies) {
             let stats = c.method.cull(&view, &mut c.cache, &mut out);
             let ids = out.ids();
             tally.cull_us.push(stats.cull_us);
             tally.pvs += ids.len() as u64;
-            tally.in_frustum += stats.in_frustum;
+            tally.in_frustum += in_frustum;
             tally.pvs_triangles += ids
                 .iter()
                 .map(|&i| scene.objects()[i as usize].triangle_count() as u64)

@@ -45,7 +45,8 @@ pub struct MethodReport {
     pub mean_pvs: f64,
     /// Mean truth-visible objects.
     pub mean_truth: f64,
-    /// Mean objects in the frustum (as the method counts them).
+    /// Mean objects whose box touches the frustum, counted exactly by eval
+    /// (the same for every method on the same frames).
     pub mean_in_frustum: f64,
     /// Truth-visible objects it dropped, summed over frames.
     pub misses: u64,

@@ -10,7 +10,7 @@
 //! topmost horizontal surface over the cells of a plan grid, counting only
 //! the lowest quarter of the scene (see `find_floor`). A person occupies the
 //! slab from 0.3 m above the floor to 0.2 m above the eye. Every triangle
-//! crossing that slab is clipped to it ([`ConvexPolygon::split`]) and the
+//! crossing that slab is clipped to it ([`ConvexPolygon::clipped`]) and the
 //! cells of a 2D grid over the scene that the clipped part touches are
 //! blocked (its corners, points along its edges at half a cell, and the
 //! cells whose centres it covers). Triangles, not boxes: one object's box may
@@ -230,7 +230,10 @@ impl FreeSpace {
                 continue;
             }
             let tri = ConvexPolygon::new(t.iter().map(|v| v.as_dvec3()).collect());
-            let Some(part) = clip_keep(&tri, &below).and_then(|p| clip_keep(&p, &above)) else {
+            let Some(part) = tri
+                .clipped(&below, 1e-9)
+                .and_then(|p| p.clipped(&above, 1e-9))
+            else {
                 continue;
             };
             let vs = &part.vertices;
@@ -411,15 +414,6 @@ impl FreeSpace {
         }
         Ok(out)
     }
-}
-
-/// The part of `poly` in front of `plane`, if any (on-plane parts kept).
-fn clip_keep(poly: &ConvexPolygon, plane: &Plane) -> Option<ConvexPolygon> {
-    let s = poly.split(plane, 1e-9);
-    if s.coplanar || s.back.is_none() {
-        return Some(poly.clone());
-    }
-    s.front
 }
 
 /// The area of the plan (xz projection) of a polygon.

@@ -63,6 +63,16 @@ impl ConvexPolygon {
         Plane::from_point_normal(self.centroid(), self.normal()?)
     }
 
+    /// The part in front of `plane` (on it within `eps` counts as in front),
+    /// or `None` when nothing is.
+    pub fn clipped(&self, plane: &Plane, eps: f64) -> Option<ConvexPolygon> {
+        let s = self.split(plane, eps);
+        if s.coplanar || s.back.is_none() {
+            return (self.vertices.len() >= 3).then(|| self.clone());
+        }
+        s.front
+    }
+
     /// Splits the polygon by `plane`. Vertices within `eps` of the plane
     /// count as on it and go to both parts, so no sliver is lost between them.
     pub fn split(&self, plane: &Plane, eps: f64) -> Split {

@@ -184,8 +184,9 @@ pub struct StatsBody {
     pub cull_us: f64,
     /// Hierarchy nodes tested.
     pub nodes_tested: u64,
-    /// Objects in the frustum.
-    pub in_frustum: u64,
+    /// Objects in the frustum; `null` when the method does not count them
+    /// (occlusion methods drop hidden subtrees uncounted).
+    pub in_frustum: Option<u64>,
     /// Objects in the answer.
     pub visible: u64,
 }

@@ -14,7 +14,9 @@
 
 use std::sync::Arc;
 
-use crate::cull::{CullCounters, CullMethod, MethodError, MethodOptions, View, VisibleSet};
+use crate::cull::{
+    CullCounters, CullMethod, InFrustum, MethodError, MethodOptions, View, VisibleSet,
+};
 use crate::geom::{ALL_PLANES, Frustum, PlaneMask, Side};
 use crate::scene::Scene;
 use crate::spatial::{KdTree, NodeKind};
@@ -60,41 +62,73 @@ impl CullMethod for FrustumCulling {
     }
 
     fn cull(&self, view: &View, _: &mut (), out: &mut VisibleSet) -> CullCounters {
-        let nodes = self.tree.nodes();
-        let objects = self.scene.objects();
-        let mut tested = 0u64;
-        if nodes.is_empty() {
+        if self.tree.nodes().is_empty() {
             return CullCounters::default();
         }
-        // Depth is bounded by the build's limit, so the stack stays small.
-        let mut stack: Vec<(u32, PlaneMask)> = Vec::with_capacity(64);
-        stack.push((0, ALL_PLANES));
-        while let Some((i, mask)) = stack.pop() {
-            let node = &nodes[i as usize];
-            tested += 1;
-            let (side, mask) = view.frustum.classify(&node.bounds, mask);
-            match (side, node.kind) {
-                (Side::Outside, _) => {}
-                (Side::Inside, _) => out.extend_from_slice(self.tree.node_refs(node)),
-                (Side::Intersecting, NodeKind::Inner { children, .. }) => {
-                    stack.push((children[1], mask));
-                    stack.push((children[0], mask));
-                }
-                (Side::Intersecting, NodeKind::Leaf) => {
-                    for &id in self.tree.node_refs(node) {
-                        // Only the part inside this leaf's cell: the rest of the
-                        // box lies in other leaves, which test their own part.
-                        let part = objects[id as usize].bounds.clipped(&node.cell);
-                        if view.frustum.classify_exact(&part, mask).0 != Side::Outside {
-                            out.push(id);
-                        }
+        let tested = cull_subtree(
+            &self.tree,
+            &self.scene,
+            &view.frustum,
+            0,
+            ALL_PLANES,
+            out,
+            None,
+        );
+        CullCounters {
+            nodes_tested: tested,
+            in_frustum: InFrustum::Answer,
+        }
+    }
+}
+
+/// Frustum culling of the subtree under `root`, whose ancestors left the
+/// planes in `mask` to test; adds every object whose box touches the frustum
+/// and, when asked, the leaves reached. Returns the nodes tested. Occlusion
+/// methods finish a subtree they found fully visible with it.
+pub(crate) fn cull_subtree(
+    tree: &KdTree,
+    scene: &Scene,
+    frustum: &Frustum,
+    root: u32,
+    mask: PlaneMask,
+    out: &mut VisibleSet,
+    mut leaves: Option<&mut Vec<u32>>,
+) -> u64 {
+    let (nodes, objects) = (tree.nodes(), scene.objects());
+    let mut tested = 0u64;
+    // Depth is bounded by the build's limit, so the stack stays small.
+    let mut stack: Vec<(u32, PlaneMask)> = Vec::with_capacity(64);
+    stack.push((root, mask));
+    while let Some((i, mask)) = stack.pop() {
+        let node = &nodes[i as usize];
+        tested += 1;
+        let (side, mask) = frustum.classify(&node.bounds, mask);
+        if side != Side::Outside && node.kind == NodeKind::Leaf {
+            if let Some(l) = leaves.as_deref_mut() {
+                l.push(i);
+            }
+        }
+        match (side, node.kind) {
+            (Side::Outside, _) => {}
+            (Side::Inside, NodeKind::Leaf) => out.extend_from_slice(tree.node_refs(node)),
+            (Side::Inside, NodeKind::Inner { .. }) if leaves.is_none() => {
+                out.extend_from_slice(tree.node_refs(node))
+            }
+            (_, NodeKind::Inner { children, .. }) => {
+                stack.push((children[1], mask));
+                stack.push((children[0], mask));
+            }
+            (Side::Intersecting, NodeKind::Leaf) => {
+                for &id in tree.node_refs(node) {
+                    // Only the part inside this leaf's cell: the rest of the
+                    // box lies in other leaves, which test their own part.
+                    let part = objects[id as usize].bounds.clipped(&node.cell);
+                    if frustum.classify_exact(&part, mask).0 != Side::Outside {
+                        out.push(id);
                     }
                 }
             }
         }
-        CullCounters {
-            nodes_tested: tested,
-            in_frustum: None,
-        }
     }
+    tested
 }

@@ -1,0 +1,483 @@
+//! The occlusion tree (OBSP, Bittner et al. §4–5) and its modified form
+//! (MOBSP, §6): a BSP tree of shadow planes through the eye, whose in-leaves
+//! link the occluder fragment that shadows their cell.
+//!
+//! **Soundness.** An in-leaf decides only with the plane of its own linked
+//! fragment: what lies behind that plane inside the leaf's cell is hidden by
+//! that fragment, whatever else the tree holds. So the front-to-back order of
+//! insertion only affects how much is culled, never correctness. Every
+//! classification against a plane errs towards "both sides" within `eps`,
+//! and "both sides" explores both subtrees, which can only find more visible.
+
+use glam::DVec3;
+
+use crate::geom::{Aabb, ConvexPolygon, Plane};
+
+/// Visibility of a region or polygon with respect to the tree's occluders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Visibility {
+    /// Hidden by the occluders.
+    Invisible,
+    /// Partly hidden, partly not (or not known to be either).
+    Partial,
+    /// Not hidden at all.
+    Full,
+}
+
+impl Visibility {
+    /// The visibility of a union (Table 1).
+    pub fn combine(self, other: Visibility) -> Visibility {
+        if self == other {
+            self
+        } else {
+            Visibility::Partial
+        }
+    }
+}
+
+/// How an in-leaf decides a region it cannot place wholly on one side of
+/// the fragment's plane (Table 2's last letter).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LeafTest {
+    /// Exact: the region misses the truncated pyramid between the eye and the
+    /// fragment (a separating-axis test) → invisible there.
+    Exact,
+    /// Conservative: only the pyramid's own face planes may separate.
+    Conservative,
+}
+
+#[derive(Clone, Debug)]
+enum Node {
+    Inner { plane: Plane, front: u32, back: u32 },
+    Out,
+    In { fragment: u32 },
+}
+
+/// A fragment linked from in-leaves: its polygon, its plane facing the eye.
+#[derive(Clone, Debug)]
+struct Fragment {
+    polygon: ConvexPolygon,
+    plane: Plane,
+}
+
+/// A polygon whose edges may be flagged as lying in a plane already in the
+/// tree (MOBSP). `flags[i]` belongs to the edge from vertex `i` to `i + 1`.
+#[derive(Clone, Debug)]
+struct Flagged {
+    vertices: Vec<DVec3>,
+    flags: Vec<bool>,
+}
+
+/// An occlusion tree for one eye.
+#[derive(Clone, Debug)]
+pub struct OcclusionTree {
+    nodes: Vec<Node>,
+    fragments: Vec<Fragment>,
+    eye: DVec3,
+    eps: f64,
+    modified: bool,
+}
+
+impl OcclusionTree {
+    /// Builds the tree for `eye` from occluders in (roughly) front-to-back
+    /// order. `modified` builds the MOBSP (flagged edges add no planes).
+    /// `eps` is the distance within which a point counts as on a plane.
+    pub fn build<'a>(
+        eye: DVec3,
+        occluders: impl IntoIterator<Item = &'a ConvexPolygon>,
+        modified: bool,
+        eps: f64,
+    ) -> Self {
+        let mut t = OcclusionTree {
+            nodes: vec![Node::Out],
+            fragments: Vec::new(),
+            eye,
+            eps,
+            modified,
+        };
+        for o in occluders {
+            t.insert(o);
+        }
+        t
+    }
+
+    /// How many nodes (shadow planes and leaves).
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    fn insert(&mut self, occluder: &ConvexPolygon) {
+        let Some(plane) = occluder.plane() else {
+            return;
+        };
+        let side = plane.signed_distance(self.eye);
+        if side.abs() <= self.eps {
+            return; // seen edge-on: it hides nothing
+        }
+        let plane = if side > 0.0 { plane } else { plane.flipped() };
+        // Every shadow plane must exist, or the volume would be too large.
+        if self.shadow_planes(&occluder.vertices, &plane).is_none() {
+            return;
+        }
+        let mut stack = vec![(
+            0u32,
+            Flagged {
+                flags: vec![false; occluder.vertices.len()],
+                vertices: occluder.vertices.clone(),
+            },
+        )];
+        while let Some((n, poly)) = stack.pop() {
+            match self.nodes[n as usize].clone() {
+                Node::In { .. } => {}
+                Node::Out => self.grow(n, poly, plane),
+                Node::Inner {
+                    plane: split,
+                    front,
+                    back,
+                } => {
+                    let (f, b) = split_flagged(&poly, &split, self.eps);
+                    if let Some(f) = f {
+                        stack.push((front, f));
+                    }
+                    if let Some(b) = b {
+                        stack.push((back, b));
+                    }
+                }
+            }
+        }
+    }
+
+    /// The shadow planes of a polygon's edges, each with the polygon behind
+    /// it; `None` if one degenerates (the eye in line with an edge).
+    fn shadow_planes(&self, v: &[DVec3], plane: &Plane) -> Option<Vec<Plane>> {
+        let inside = v.iter().copied().sum::<DVec3>() / v.len() as f64;
+        (0..v.len())
+            .map(|i| {
+                let (a, b) = (v[i], v[(i + 1) % v.len()]);
+                let n = (a - self.eye).cross(b - self.eye);
+                let p = Plane::from_point_normal(self.eye, n)?;
+                let p = if p.signed_distance(inside) > 0.0 {
+                    p.flipped()
+                } else {
+                    p
+                };
+                // The eye must see the polygon's face, not an edge of it.
+                (plane.signed_distance(self.eye) > 0.0).then_some(p)
+            })
+            .collect()
+    }
+
+    /// Replaces out-leaf `n` by the occlusion volume of `poly`.
+    fn grow(&mut self, n: u32, poly: Flagged, plane: Plane) {
+        let Some(planes) = self.shadow_planes(&poly.vertices, &plane) else {
+            return;
+        };
+        let fragment = self.fragments.len() as u32;
+        self.fragments.push(Fragment {
+            polygon: ConvexPolygon::new(poly.vertices.clone()),
+            plane,
+        });
+        let planes: Vec<Plane> = planes
+            .into_iter()
+            .zip(&poly.flags)
+            .filter(|&(_, flagged)| !(self.modified && *flagged))
+            .map(|(p, _)| p)
+            .collect();
+        // A chain: each plane's front is lit, its back leads to the next plane,
+        // the last back is the shadow.
+        let mut at = n;
+        for (i, p) in planes.iter().enumerate() {
+            let out = self.push(Node::Out);
+            let back = if i + 1 == planes.len() {
+                self.push(Node::In { fragment })
+            } else {
+                self.push(Node::Out)
+            };
+            self.nodes[at as usize] = Node::Inner {
+                plane: *p,
+                front: out,
+                back,
+            };
+            at = back;
+        }
+        if planes.is_empty() {
+            self.nodes[n as usize] = Node::In { fragment };
+        }
+    }
+
+    fn push(&mut self, node: Node) -> u32 {
+        self.nodes.push(node);
+        (self.nodes.len() - 1) as u32
+    }
+
+    /// The modified visibility algorithm (§6.2): the box is never split; at
+    /// a plane it crosses, both subtrees are searched.
+    pub fn region_visibility(&self, b: &Aabb, leaf_test: LeafTest) -> Visibility {
+        let mut result: Option<Visibility> = None;
+        let mut stack = vec![0u32];
+        while let Some(n) = stack.pop() {
+            let v = match &self.nodes[n as usize] {
+                Node::Out => Visibility::Full,
+                Node::In { fragment } => {
+                    self.leaf_region(&self.fragments[*fragment as usize], b, leaf_test)
+                }
+                Node::Inner { plane, front, back } => {
+                    let (lo, hi) = box_range(plane, b);
+                    if lo > self.eps {
+                        stack.push(*front);
+                    } else if hi < -self.eps {
+                        stack.push(*back);
+                    } else {
+                        stack.push(*back);
+                        stack.push(*front);
+                    }
+                    continue;
+                }
+            };
+            let r = result.map_or(v, |r| r.combine(v));
+            if r == Visibility::Partial {
+                return r;
+            }
+            result = Some(r);
+        }
+        result.unwrap_or(Visibility::Full)
+    }
+
+    fn leaf_region(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> Visibility {
+        let (lo, hi) = box_range(&f.plane, b);
+        if hi < -self.eps {
+            return Visibility::Invisible;
+        }
+        if lo > self.eps {
+            return Visibility::Full;
+        }
+        // Across the fragment's plane. Inside this leaf's cell (a part of the
+        // pyramid from the eye through the fragment) the box is in front of
+        // the plane only where it meets the pyramid between eye and fragment.
+        if self.misses_pyramid(f, b, leaf_test) {
+            Visibility::Invisible
+        } else {
+            Visibility::Partial
+        }
+    }
+
+    /// Whether the box is separated from conv(eye, fragment), with a margin.
+    fn misses_pyramid(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> bool {
+        let v = &f.polygon.vertices;
+        let pts: Vec<DVec3> = std::iter::once(self.eye).chain(v.iter().copied()).collect();
+        let separates = |axis: DVec3| {
+            let Some(axis) = axis.try_normalize() else {
+                return false;
+            };
+            let (plo, phi) = pts
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+                    let d = axis.dot(*p);
+                    (l.min(d), h.max(d))
+                });
+            let (c, r) = (
+                (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5,
+                (b.max - b.min).as_dvec3() * 0.5,
+            );
+            let (bc, br) = (axis.dot(c), axis.abs().dot(r));
+            bc + br < plo - self.eps || bc - br > phi + self.eps
+        };
+        // The pyramid's faces: its base and one side per edge.
+        if separates(f.plane.normal) {
+            return true;
+        }
+        let sides = (0..v.len()).map(|i| (v[i] - self.eye).cross(v[(i + 1) % v.len()] - self.eye));
+        if sides.clone().any(separates) {
+            return true;
+        }
+        if leaf_test == LeafTest::Conservative {
+            return false;
+        }
+        let axes = [DVec3::X, DVec3::Y, DVec3::Z];
+        if axes.iter().any(|&a| separates(a)) {
+            return true;
+        }
+        let edges = (0..v.len()).flat_map(|i| [v[(i + 1) % v.len()] - v[i], v[i] - self.eye]);
+        edges.flat_map(|e| axes.map(|a| e.cross(a))).any(separates)
+    }
+
+    /// Exact visibility of a box with respect to the occluders (§5.1–5.2):
+    /// its faces towards the eye are filtered down the tree with splitting.
+    /// Meant for the OBSP; boxes flat on an axis fall back to
+    /// [`OcclusionTree::region_visibility`].
+    pub fn box_visibility_exact(&self, b: &Aabb) -> Visibility {
+        let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+        let e = self.eye;
+        if (0..3).any(|k| hi[k] - lo[k] <= self.eps) {
+            return self.region_visibility(b, LeafTest::Exact);
+        }
+        if (0..3).all(|k| e[k] >= lo[k] - self.eps && e[k] <= hi[k] + self.eps) {
+            // The eye is in (or on) the box: every face turns away, yet what
+            // the box holds may still be hidden. Nothing can be concluded.
+            return Visibility::Partial;
+        }
+        let mut result: Option<Visibility> = None;
+        for k in 0..3 {
+            let at = if e[k] < lo[k] {
+                lo[k]
+            } else if e[k] > hi[k] {
+                hi[k]
+            } else {
+                continue;
+            };
+            let (u, w) = ((k + 1) % 3, (k + 2) % 3);
+            let corner = |a: f64, c: f64| {
+                let mut p = DVec3::ZERO;
+                p[k] = at;
+                p[u] = a;
+                p[w] = c;
+                p
+            };
+            let face = ConvexPolygon::new(vec![
+                corner(lo[u], lo[w]),
+                corner(hi[u], lo[w]),
+                corner(hi[u], hi[w]),
+                corner(lo[u], hi[w]),
+            ]);
+            let v = self.polygon_visibility(face);
+            let r = result.map_or(v, |r| r.combine(v));
+            if r == Visibility::Partial {
+                return r;
+            }
+            result = Some(r);
+        }
+        result.unwrap_or(Visibility::Full)
+    }
+
+    /// Figure 4: a polygon filtered down the tree, fragments combined.
+    fn polygon_visibility(&self, polygon: ConvexPolygon) -> Visibility {
+        let mut result: Option<Visibility> = None;
+        let mut stack = vec![(0u32, polygon)];
+        while let Some((n, p)) = stack.pop() {
+            let v = match &self.nodes[n as usize] {
+                Node::Out => Visibility::Full,
+                Node::In { fragment } => {
+                    let f = &self.fragments[*fragment as usize];
+                    let (lo, hi) =
+                        p.vertices
+                            .iter()
+                            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+                                let d = f.plane.signed_distance(*v);
+                                (l.min(d), h.max(d))
+                            });
+                    if hi < -self.eps {
+                        Visibility::Invisible
+                    } else if lo > self.eps {
+                        Visibility::Full
+                    } else {
+                        Visibility::Partial
+                    }
+                }
+                Node::Inner { plane, front, back } => {
+                    let s = p.split(plane, self.eps);
+                    if s.coplanar {
+                        stack.push((*back, p.clone()));
+                        stack.push((*front, p));
+                    } else {
+                        if let Some(b) = s.back {
+                            stack.push((*back, b));
+                        }
+                        if let Some(f) = s.front {
+                            stack.push((*front, f));
+                        }
+                    }
+                    continue;
+                }
+            };
+            let r = result.map_or(v, |r| r.combine(v));
+            if r == Visibility::Partial {
+                return r;
+            }
+            result = Some(r);
+        }
+        result.unwrap_or(Visibility::Full)
+    }
+}
+
+/// The smallest and largest signed distance of a box's corners to a plane.
+fn box_range(plane: &Plane, b: &Aabb) -> (f64, f64) {
+    let c = (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5;
+    let r = (b.max - b.min).as_dvec3() * 0.5;
+    let d = plane.signed_distance(c);
+    let e = plane.normal.abs().dot(r);
+    (d - e, d + e)
+}
+
+/// Splits a flagged polygon by a shadow plane. Edges lying in the plane, and
+/// the new edge along it, are flagged in both parts.
+fn split_flagged(p: &Flagged, plane: &Plane, eps: f64) -> (Option<Flagged>, Option<Flagged>) {
+    let d: Vec<f64> = p
+        .vertices
+        .iter()
+        .map(|&v| plane.signed_distance(v))
+        .collect();
+    if d.iter().all(|x| x.abs() <= eps) {
+        // In the plane (edge-on from the eye): it casts no shadow.
+        return (None, None);
+    }
+    if d.iter().all(|&x| x >= -eps) {
+        return (Some(flag_on_plane(p, &d, eps)), None);
+    }
+    if d.iter().all(|&x| x <= eps) {
+        return (None, Some(flag_on_plane(p, &d, eps)));
+    }
+    (
+        clip_side(p, plane, &d, 1.0, eps),
+        clip_side(p, plane, &d, -1.0, eps),
+    )
+}
+
+/// The part of `p` on side `sign` of the plane whose vertex distances are `d`.
+/// An output vertex's edge keeps the original edge's flag while it runs
+/// along that edge, and is flagged where it runs along the plane.
+fn clip_side(p: &Flagged, plane: &Plane, d: &[f64], sign: f64, eps: f64) -> Option<Flagged> {
+    let n = p.vertices.len();
+    let mut out = Flagged {
+        vertices: Vec::with_capacity(n + 1),
+        flags: Vec::with_capacity(n + 1),
+    };
+    for i in 0..n {
+        let j = (i + 1) % n;
+        let (a, b) = (p.vertices[i], p.vertices[j]);
+        let (da, db) = (d[i] * sign, d[j] * sign);
+        let leaving = da > eps && db < -eps;
+        let entering = da < -eps && db > eps;
+        if da >= -eps {
+            let along_edge = db >= -eps || leaving;
+            out.vertices.push(a);
+            out.flags.push(if along_edge { p.flags[i] } else { true });
+        }
+        if leaving || entering {
+            out.vertices.push(a + (b - a) * (d[i] / (d[i] - d[j])));
+            out.flags.push(if entering { p.flags[i] } else { true });
+        }
+    }
+    if out.vertices.len() < 3 {
+        return None;
+    }
+    let m = out.vertices.len();
+    for i in 0..m {
+        let (a, b) = (out.vertices[i], out.vertices[(i + 1) % m]);
+        if plane.signed_distance(a).abs() <= eps && plane.signed_distance(b).abs() <= eps {
+            out.flags[i] = true;
+        }
+    }
+    Some(out)
+}
+
+/// The polygon with every edge that lies in `plane` (distances `d`) flagged.
+fn flag_on_plane(p: &Flagged, d: &[f64], eps: f64) -> Flagged {
+    let n = p.vertices.len();
+    let mut out = p.clone();
+    for i in 0..n {
+        if d[i].abs() <= eps && d[(i + 1) % n].abs() <= eps {
+            out.flags[i] = true;
+        }
+    }
+    out
+}

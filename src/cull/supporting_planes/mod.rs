@@ -1,0 +1,305 @@
+//! `supporting_planes`: occlusion culling with large occluders after Coorg &
+//! Teller (I3D 1997).
+//!
+//! A box is hidden by a convex occluder exactly when the eye lies beyond all
+//! *supporting planes* of the pair (planes through an occluder edge and a box
+//! corner with both on one side); it is fully clear of it when the eye lies
+//! beyond a *separating plane* (occluder and box on opposite sides). We test
+//! the equivalent form that needs no plane per (box, occluder) pair: the box
+//! lies inside the occluder's shadow (behind its plane, inside the plane
+//! through the eye and each edge), or outside it (in front of its plane, or
+//! outside one edge plane). Two occluders sharing an edge that is not on the
+//! silhouette from the eye hide together what neither hides alone: the box is
+//! split by the plane through the eye and the shared edge, and each half
+//! must lie in its own occluder's shadow, that plane ignored.
+//!
+//! Occluders are picked per view by area-angle as for `occlusion_tree`; the
+//! kd-tree is traversed by [`super::hierarchy`]. The temporal cache keeps,
+//! per kd node, the occluder that hid it last frame and tries it first.
+//! Every object is tested with its whole box (its part in a leaf), never
+//! from its centre only.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use glam::DVec3;
+
+use super::hierarchy::{self, Target};
+use super::occluder::Occluders;
+use super::occlusion_tree::{Selection, SelectionOptions, Visibility, plane_eps, visible_parts};
+use super::{CullCounters, CullMethod, MethodError, MethodOptions, View, VisibleSet};
+use crate::geom::{Aabb, ConvexPolygon, Plane};
+use crate::scene::Scene;
+use crate::spatial::KdTree;
+
+/// Supporting and separating planes against the selected occluders.
+pub struct SupportingPlanesCulling {
+    scene: Arc<Scene>,
+    tree: Arc<KdTree>,
+    occluders: Arc<Occluders>,
+    /// Per occluder: the occluders it shares an edge with, and that edge.
+    neighbours: Vec<Vec<(u32, [DVec3; 2])>>,
+}
+
+/// A client's state: options, marks, next occluders, and per kd node the
+/// occluder that hid it last frame.
+pub struct SupportingPlanesState {
+    selection: Selection,
+    hidden_by: HashMap<u32, u32>,
+}
+
+/// One occluder seen from this frame's eye.
+struct Shadow {
+    index: u32,
+    /// The occluder's plane, eye on the positive side.
+    plane: Plane,
+    /// Planes through the eye and each edge, the occluder on the negative side.
+    edges: Vec<Plane>,
+    /// The edges' end points, to find the shared one of a pair.
+    corners: Vec<DVec3>,
+}
+
+impl SupportingPlanesCulling {
+    /// The method over `tree` with the scene's `occluders`.
+    pub fn new(scene: Arc<Scene>, tree: Arc<KdTree>, occluders: Arc<Occluders>) -> Self {
+        let key = |v: DVec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+        let mut by_edge: HashMap<([u64; 3], [u64; 3]), Vec<u32>> = HashMap::new();
+        for (i, o) in occluders.all().iter().enumerate() {
+            let v = &o.polygon.vertices;
+            for e in 0..v.len() {
+                let (a, b) = (key(v[e]), key(v[(e + 1) % v.len()]));
+                by_edge
+                    .entry(if a < b { (a, b) } else { (b, a) })
+                    .or_default()
+                    .push(i as u32);
+            }
+        }
+        let mut neighbours = vec![Vec::new(); occluders.all().len()];
+        for (i, o) in occluders.all().iter().enumerate() {
+            let v = &o.polygon.vertices;
+            for e in 0..v.len() {
+                let (a, b) = (v[e], v[(e + 1) % v.len()]);
+                let (ka, kb) = (key(a), key(b));
+                for &j in &by_edge[&if ka < kb { (ka, kb) } else { (kb, ka) }] {
+                    if j as usize != i {
+                        neighbours[i].push((j, [a, b]));
+                    }
+                }
+            }
+        }
+        SupportingPlanesCulling {
+            scene,
+            tree,
+            occluders,
+            neighbours,
+        }
+    }
+
+    /// The shadow of `part`, the visible part of occluder `index`.
+    fn shadow(&self, index: u32, part: &ConvexPolygon, eye: DVec3, eps: f64) -> Option<Shadow> {
+        let o = &self.occluders.all()[index as usize];
+        let side = o.plane.signed_distance(eye);
+        if side.abs() <= eps {
+            return None;
+        }
+        let plane = if side > 0.0 {
+            o.plane
+        } else {
+            o.plane.flipped()
+        };
+        let v = &part.vertices;
+        let inner = part.centroid();
+        let edges = (0..v.len())
+            .map(|e| {
+                let p =
+                    Plane::from_point_normal(eye, (v[e] - eye).cross(v[(e + 1) % v.len()] - eye))?;
+                Some(if p.signed_distance(inner) > 0.0 {
+                    p.flipped()
+                } else {
+                    p
+                })
+            })
+            .collect::<Option<Vec<_>>>()?;
+        Some(Shadow {
+            index,
+            plane,
+            edges,
+            corners: v.clone(),
+        })
+    }
+}
+
+/// The index of the edge of `corners` joining `a` and `b`, either way round.
+fn edge_index(corners: &[DVec3], a: DVec3, b: DVec3) -> Option<usize> {
+    let n = corners.len();
+    (0..n).find(|&e| {
+        let (p, q) = (corners[e], corners[(e + 1) % n]);
+        (p == a && q == b) || (p == b && q == a)
+    })
+}
+
+/// Smallest and largest signed distance of a set of points to a plane.
+fn range(plane: &Plane, pts: &[DVec3]) -> (f64, f64) {
+    pts.iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            let d = plane.signed_distance(*p);
+            (l.min(d), h.max(d))
+        })
+}
+
+/// Whether every point lies inside the shadow, `skip` (a shared edge's
+/// plane) not counted.
+fn inside(s: &Shadow, pts: &[DVec3], skip: Option<usize>, eps: f64) -> bool {
+    !pts.is_empty()
+        && range(&s.plane, pts).1 < -eps
+        && s.edges
+            .iter()
+            .enumerate()
+            .all(|(e, p)| Some(e) == skip || range(p, pts).1 < -eps)
+}
+
+/// Whether the points lie wholly outside the shadow (clear of the occluder).
+fn outside(s: &Shadow, pts: &[DVec3], eps: f64) -> bool {
+    range(&s.plane, pts).0 > eps || s.edges.iter().any(|p| range(p, pts).0 > eps)
+}
+
+/// The corners of the part of box `b` on the negative side of `plane`.
+fn clip_box(corners: &[DVec3; 8], plane: &Plane) -> Vec<DVec3> {
+    let d = corners.map(|c| plane.signed_distance(c));
+    let mut out: Vec<DVec3> = (0..8)
+        .filter(|&i| d[i] <= 0.0)
+        .map(|i| corners[i])
+        .collect();
+    for i in 0..8 {
+        for bit in [1, 2, 4] {
+            let j = i | bit;
+            if j != i && (d[i] < 0.0) != (d[j] < 0.0) && d[i] != d[j] {
+                out.push(corners[i] + (corners[j] - corners[i]) * (d[i] / (d[i] - d[j])));
+            }
+        }
+    }
+    out
+}
+
+impl CullMethod for SupportingPlanesCulling {
+    type State = SupportingPlanesState;
+
+    fn name(&self) -> &'static str {
+        "supporting_planes"
+    }
+
+    fn new_state(&self, options: &MethodOptions) -> Result<Self::State, MethodError> {
+        let r = options.reader(
+            "supporting_planes",
+            &["k", "lambda", "min_cost", "temporal"],
+        );
+        let selection = Selection::new(SelectionOptions::read(&r)?);
+        r.finish()?;
+        Ok(SupportingPlanesState {
+            selection,
+            hidden_by: HashMap::new(),
+        })
+    }
+
+    fn is_conservative(&self, _: &Self::State) -> bool {
+        true
+    }
+
+    fn cull(&self, view: &View, state: &mut Self::State, out: &mut VisibleSet) -> CullCounters {
+        let eye = view.eye;
+        let eps = plane_eps(&self.scene, eye);
+        let picked = state
+            .selection
+            .occluders_for(&self.tree, &self.occluders, view);
+        // Only what lies beyond the near plane can hide anything.
+        let shadows: Vec<Shadow> = visible_parts(&self.occluders, picked, view, eps)
+            .iter()
+            .filter_map(|(i, part)| self.shadow(*i, part, eye, eps))
+            .collect();
+        let slot: HashMap<u32, usize> = shadows
+            .iter()
+            .enumerate()
+            .map(|(s, sh)| (sh.index, s))
+            .collect();
+        // Connected pairs among the picked: the shared edge's plane must have
+        // the two occluders on opposite sides (not a silhouette edge).
+        let mut pairs: Vec<(usize, usize, usize, usize, Plane)> = Vec::new();
+        for (s, sh) in shadows.iter().enumerate() {
+            for &(j, [a, b]) in &self.neighbours[sh.index as usize] {
+                let Some(&t) = slot.get(&j) else { continue };
+                if t <= s {
+                    continue;
+                }
+                let (Some(ea), Some(eb)) = (
+                    edge_index(&sh.corners, a, b),
+                    edge_index(&shadows[t].corners, a, b),
+                ) else {
+                    continue;
+                };
+                let Some(cut) = Plane::from_point_normal(eye, (a - eye).cross(b - eye)) else {
+                    continue;
+                };
+                // Orient the plane with `sh` behind it; the pair hides jointly
+                // only if the other occluder lies in front (the shared edge is
+                // then not on the silhouette).
+                let (lo, hi) = range(&cut, &sh.corners);
+                let cut = if hi <= eps {
+                    cut
+                } else if lo >= -eps {
+                    cut.flipped()
+                } else {
+                    continue;
+                };
+                if range(&cut, &shadows[t].corners).0 >= -eps {
+                    pairs.push((s, ea, t, eb, cut));
+                }
+            }
+        }
+        let hidden_by = &mut state.hidden_by;
+        let mut test = |target: Target, b: &Aabb| {
+            let corners = b.corners().map(|c| c.as_dvec3());
+            if let Target::Node(n) = target {
+                if let Some(&s) = hidden_by.get(&n).and_then(|o| slot.get(o)) {
+                    if inside(&shadows[s], &corners, None, eps) {
+                        return Visibility::Invisible;
+                    }
+                }
+            }
+            if let Some(s) = shadows.iter().position(|s| inside(s, &corners, None, eps)) {
+                if let Target::Node(n) = target {
+                    hidden_by.insert(n, shadows[s].index);
+                }
+                return Visibility::Invisible;
+            }
+            for &(s, ea, t, eb, cut) in &pairs {
+                // The box's part on each occluder's side of the shared edge's
+                // plane must be in that occluder's shadow.
+                let near = clip_box(&corners, &cut);
+                let far = clip_box(&corners, &cut.flipped());
+                if inside(&shadows[s], &near, Some(ea), eps)
+                    && inside(&shadows[t], &far, Some(eb), eps)
+                {
+                    return Visibility::Invisible;
+                }
+            }
+            if shadows.iter().all(|s| outside(s, &corners, eps)) {
+                Visibility::Full
+            } else {
+                Visibility::Partial
+            }
+        };
+        let sel = &mut state.selection;
+        let counters = hierarchy::cull(
+            &self.tree,
+            &self.scene,
+            view,
+            sel.options.hierarchy,
+            &mut sel.marks,
+            &mut test,
+            out,
+            &mut sel.leaves,
+        );
+        sel.remember(&self.tree, &self.occluders, eye);
+        counters
+    }
+}
