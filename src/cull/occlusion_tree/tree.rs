@@ -214,7 +214,10 @@ impl OcclusionTree {
     /// a plane it crosses, both subtrees are searched.
     pub fn region_visibility(&self, b: &Aabb, leaf_test: LeafTest) -> Visibility {
         let mut result: Option<Visibility> = None;
-        let mut stack = vec![0u32];
+        // Called for every kd node and object a frame: keep it off the heap
+        // while the tree is shallow enough, which it nearly always is.
+        let mut stack = SmallStack::new();
+        stack.push(0);
         while let Some(n) = stack.pop() {
             let v = match &self.nodes[n as usize] {
                 Node::Out => Visibility::Full,
@@ -264,17 +267,16 @@ impl OcclusionTree {
     /// Whether the box is separated from conv(eye, fragment), with a margin.
     fn misses_pyramid(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> bool {
         let v = &f.polygon.vertices;
-        let pts: Vec<DVec3> = std::iter::once(self.eye).chain(v.iter().copied()).collect();
         let separates = |axis: DVec3| {
             let Some(axis) = axis.try_normalize() else {
                 return false;
             };
-            let (plo, phi) = pts
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
-                    let d = axis.dot(*p);
-                    (l.min(d), h.max(d))
-                });
+            // The pyramid's corners: the eye and the fragment's vertices.
+            let e = axis.dot(self.eye);
+            let (plo, phi) = v.iter().fold((e, e), |(l, h), p| {
+                let d = axis.dot(*p);
+                (l.min(d), h.max(d))
+            });
             let (c, r) = (
                 (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5,
                 (b.max - b.min).as_dvec3() * 0.5,
@@ -480,4 +482,41 @@ fn flag_on_plane(p: &Flagged, d: &[f64], eps: f64) -> Flagged {
         }
     }
     out
+}
+
+/// A stack of node indices on the call stack, spilling to the heap only
+/// past 64 entries.
+struct SmallStack {
+    inline: [u32; 64],
+    len: usize,
+    spill: Vec<u32>,
+}
+
+impl SmallStack {
+    fn new() -> Self {
+        SmallStack {
+            inline: [0; 64],
+            len: 0,
+            spill: Vec::new(),
+        }
+    }
+
+    fn push(&mut self, v: u32) {
+        if self.len < self.inline.len() {
+            self.inline[self.len] = v;
+            self.len += 1;
+        } else {
+            self.spill.push(v);
+        }
+    }
+
+    fn pop(&mut self) -> Option<u32> {
+        if let Some(v) = self.spill.pop() {
+            return Some(v);
+        }
+        (self.len > 0).then(|| {
+            self.len -= 1;
+            self.inline[self.len]
+        })
+    }
 }

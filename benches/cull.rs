@@ -1,0 +1,52 @@
+//! Cull time per frame of each method on the same walkthrough frames, with
+//! each method's client cache carried from frame to frame as a session's is.
+//! Compare each method's time with `frustum`'s in the same run:
+//! `cargo bench --bench cull`.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::eval::{WalkKind, WalkParams, walk};
+use pvsd::scene::generate::{OfficeOptions, office};
+use pvsd::scene::load_slice;
+
+fn office_walk(c: &mut Criterion) {
+    let glb = office(&OfficeOptions::default()).to_glb();
+    let scene = Arc::new(load_slice("office", &glb, None, Path::new("office.glb")).unwrap());
+    let methods = SceneMethods::prepare(scene.clone());
+    let params = WalkParams {
+        kind: WalkKind::Random,
+        frames: 60,
+        ..WalkParams::default()
+    };
+    let views: Vec<View> = walk(&scene, &params)
+        .unwrap()
+        .into_iter()
+        .map(|cam| View::new(cam, &scene).unwrap())
+        .collect();
+    let mut group = c.benchmark_group("office_random_walk_frame");
+    for spec in [
+        "frustum",
+        "occlusion_tree:k=32",
+        "occlusion_tree:k=32:variant=fmc",
+        "supporting_planes:k=32",
+    ] {
+        let spec: MethodSpec = spec.parse().unwrap();
+        let (method, mut cache) = methods.prepare_client(&spec).unwrap();
+        let mut out = VisibleSet::new();
+        let mut frame = 0;
+        group.bench_function(spec.to_string(), |b| {
+            b.iter(|| {
+                let stats = method.cull(&views[frame % views.len()], &mut cache, &mut out);
+                frame += 1;
+                stats.visible
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, office_walk);
+criterion_main!(benches);
