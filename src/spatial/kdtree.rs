@@ -4,8 +4,10 @@
 //! object-box boundaries within a window around the cell's spatial median;
 //! the one that splits the fewest objects wins (ties: the one nearest the
 //! median). With no candidate, the median itself splits. Objects straddling
-//! the plane are referenced from both sides. Recursion stops at a leaf size,
-//! a depth limit, or when a split would separate nothing.
+//! the plane are referenced from both sides. Recursion stops at a leaf size
+//! (not counting objects that span the cell along the axis to split, which
+//! no split there could separate), a depth limit, or when a split would
+//! separate nothing.
 //!
 //! Besides its cell, every node keeps `bounds`: the union of the boxes of the
 //! objects below it, each clipped to the node's cell. It is never larger than
@@ -26,7 +28,8 @@ use crate::scene::Scene;
 /// Build limits of a [`KdTree`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct KdTreeParams {
-    /// A node with this many objects or fewer becomes a leaf.
+    /// A node with this many objects or fewer becomes a leaf (objects that
+    /// span the node's cell along its longest axis not counted).
     pub max_leaf_objects: usize,
     /// No node is deeper than this.
     pub max_depth: u32,
@@ -310,7 +313,18 @@ impl Builder {
             refs: start..start,
             kind: NodeKind::Leaf,
         });
-        let split = (items.len() > self.params.max_leaf_objects && depth < self.params.max_depth)
+        // Objects spanning the cell along the axis a split would cut go to
+        // both sides of any split: they do not count towards the leaf size,
+        // or one floor slab in every cell would split the tree to its depth.
+        let axis = cell.longest_axis();
+        let local = items
+            .iter()
+            .filter(|&&o| {
+                let b = &self.boxes[o as usize];
+                !(b.min[axis] <= cell.min[axis] && b.max[axis] >= cell.max[axis])
+            })
+            .count();
+        let split = (local > self.params.max_leaf_objects && depth < self.params.max_depth)
             .then(|| self.choose_split(&cell, &items))
             .flatten();
         match split {

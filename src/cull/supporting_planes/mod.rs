@@ -256,6 +256,7 @@ impl CullMethod for SupportingPlanesCulling {
             }
         }
         let hidden_by = &mut state.hidden_by;
+        let mut clear: Vec<bool> = Vec::with_capacity(shadows.len());
         let mut test = |target: Target, b: &Aabb| {
             let corners = b.corners().map(|c| c.as_dvec3());
             if let Target::Node(n) = target {
@@ -271,7 +272,18 @@ impl CullMethod for SupportingPlanesCulling {
                 }
                 return Visibility::Invisible;
             }
+            // Which shadows the box is wholly clear of: all of them is "fully
+            // visible"; a pair with one of them cannot hide the box either
+            // (its part on that side would have to be in that shadow).
+            clear.clear();
+            clear.extend(shadows.iter().map(|s| outside(s, &corners, eps)));
+            if clear.iter().all(|&c| c) {
+                return Visibility::Full;
+            }
             for &(s, ea, t, eb, cut) in &pairs {
+                if clear[s] || clear[t] {
+                    continue;
+                }
                 // The box's part on each occluder's side of the shared edge's
                 // plane must be in that occluder's shadow.
                 let near = clip_box(&corners, &cut);
@@ -282,11 +294,7 @@ impl CullMethod for SupportingPlanesCulling {
                     return Visibility::Invisible;
                 }
             }
-            if shadows.iter().all(|s| outside(s, &corners, eps)) {
-                Visibility::Full
-            } else {
-                Visibility::Partial
-            }
+            Visibility::Partial
         };
         let sel = &mut state.selection;
         let counters = hierarchy::cull(
