@@ -58,6 +58,63 @@ enum Node {
 struct Fragment {
     polygon: ConvexPolygon,
     plane: Plane,
+    /// Separating axes of conv(eye, fragment) with its extent on each
+    /// (computed at the first in-leaf test that needs them): first its faces
+    /// (base, then one side per edge), then the box axes and the edge ×
+    /// box-axis crosses, from index `.1` on.
+    axes: std::cell::OnceCell<(Vec<Projection>, usize)>,
+}
+
+/// An axis (unit) and the interval a convex solid covers along it.
+#[derive(Clone, Copy, Debug)]
+struct Projection {
+    axis: DVec3,
+    lo: f64,
+    hi: f64,
+}
+
+impl Fragment {
+    fn new(polygon: ConvexPolygon, plane: Plane) -> Fragment {
+        Fragment {
+            polygon,
+            plane,
+            axes: std::cell::OnceCell::new(),
+        }
+    }
+
+    /// The separating axes and where the exact-only ones start.
+    fn axes(&self, eye: DVec3) -> &(Vec<Projection>, usize) {
+        self.axes.get_or_init(|| self.compute_axes(eye))
+    }
+
+    fn compute_axes(&self, eye: DVec3) -> (Vec<Projection>, usize) {
+        let (polygon, plane) = (&self.polygon, &self.plane);
+        let v = &polygon.vertices;
+        let n = v.len();
+        let project = |axis: DVec3| {
+            let axis = axis.try_normalize()?;
+            let e = axis.dot(eye);
+            let (lo, hi) = v.iter().fold((e, e), |(l, h), p| {
+                let d = axis.dot(*p);
+                (l.min(d), h.max(d))
+            });
+            Some(Projection { axis, lo, hi })
+        };
+        let mut axes: Vec<Projection> = std::iter::once(plane.normal)
+            .chain((0..n).map(|i| (v[i] - eye).cross(v[(i + 1) % n] - eye)))
+            .filter_map(project)
+            .collect();
+        let exact_from = axes.len();
+        let box_axes = [DVec3::X, DVec3::Y, DVec3::Z];
+        axes.extend(box_axes.iter().filter_map(|&a| project(a)));
+        let edges = (0..n).flat_map(|i| [v[(i + 1) % n] - v[i], v[i] - eye]);
+        axes.extend(
+            edges
+                .flat_map(|e| box_axes.map(|a| e.cross(a)))
+                .filter_map(project),
+        );
+        (axes, exact_from)
+    }
 }
 
 /// A polygon whose edges may be flagged as lying in a plane already in the
@@ -115,10 +172,9 @@ impl OcclusionTree {
             return; // seen edge-on: it hides nothing
         }
         let plane = if side > 0.0 { plane } else { plane.flipped() };
-        // Every shadow plane must exist, or the volume would be too large.
-        if self.shadow_planes(&occluder.vertices, &plane).is_none() {
-            return;
-        }
+        // A fragment with a degenerate shadow plane (the eye in line with an
+        // edge) is refused where it would grow the tree (`grow`), so the
+        // volume is never larger than the fragment's shadow.
         let mut stack = vec![(
             0u32,
             Flagged {
@@ -173,10 +229,10 @@ impl OcclusionTree {
             return;
         };
         let fragment = self.fragments.len() as u32;
-        self.fragments.push(Fragment {
-            polygon: ConvexPolygon::new(poly.vertices.clone()),
+        self.fragments.push(Fragment::new(
+            ConvexPolygon::new(poly.vertices.clone()),
             plane,
-        });
+        ));
         let planes: Vec<Plane> = planes
             .into_iter()
             .zip(&poly.flags)
@@ -264,43 +320,20 @@ impl OcclusionTree {
         }
     }
 
-    /// Whether the box is separated from conv(eye, fragment), with a margin.
+    /// Whether the box is separated from conv(eye, fragment), with a margin:
+    /// by the pyramid's faces only, or (exact) by every axis that could.
     fn misses_pyramid(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> bool {
-        let v = &f.polygon.vertices;
-        let separates = |axis: DVec3| {
-            let Some(axis) = axis.try_normalize() else {
-                return false;
-            };
-            // The pyramid's corners: the eye and the fragment's vertices.
-            let e = axis.dot(self.eye);
-            let (plo, phi) = v.iter().fold((e, e), |(l, h), p| {
-                let d = axis.dot(*p);
-                (l.min(d), h.max(d))
-            });
-            let (c, r) = (
-                (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5,
-                (b.max - b.min).as_dvec3() * 0.5,
-            );
-            let (bc, br) = (axis.dot(c), axis.abs().dot(r));
-            bc + br < plo - self.eps || bc - br > phi + self.eps
+        let c = (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5;
+        let r = (b.max - b.min).as_dvec3() * 0.5;
+        let (all, exact_from) = f.axes(self.eye);
+        let axes = match leaf_test {
+            LeafTest::Conservative => &all[..*exact_from],
+            LeafTest::Exact => &all[..],
         };
-        // The pyramid's faces: its base and one side per edge.
-        if separates(f.plane.normal) {
-            return true;
-        }
-        let sides = (0..v.len()).map(|i| (v[i] - self.eye).cross(v[(i + 1) % v.len()] - self.eye));
-        if sides.clone().any(separates) {
-            return true;
-        }
-        if leaf_test == LeafTest::Conservative {
-            return false;
-        }
-        let axes = [DVec3::X, DVec3::Y, DVec3::Z];
-        if axes.iter().any(|&a| separates(a)) {
-            return true;
-        }
-        let edges = (0..v.len()).flat_map(|i| [v[(i + 1) % v.len()] - v[i], v[i] - self.eye]);
-        edges.flat_map(|e| axes.map(|a| e.cross(a))).any(separates)
+        axes.iter().any(|p| {
+            let (bc, br) = (p.axis.dot(c), p.axis.abs().dot(r));
+            bc + br < p.lo - self.eps || bc - br > p.hi + self.eps
+        })
     }
 
     /// Exact visibility of a box with respect to the occluders (§5.1–5.2):
