@@ -50,11 +50,7 @@ fn tiny() -> Arc<Scene> {
         f(&mut m);
         let m = m.build(false);
         b.begin_object(name, None);
-        let v = |i: u32| DVec3::from(m.positions[i as usize].map(f64::from));
-        b.add_triangles(
-            m.indices.chunks(3).map(|c| [v(c[0]), v(c[1]), v(c[2])]),
-            false,
-        );
+        b.add_triangles(m.triangles().map(|t| t.map(|v| v.as_dvec3())), false);
     };
     add("wall", &|m| {
         m.quad(

@@ -31,9 +31,8 @@ fn scene(parts: Vec<Part>) -> Scene {
     for p in parts {
         b.begin_object(p.name, None);
         let m = p.mesh.build(p.see_through);
-        let v = |i: u32| DVec3::from(m.positions[i as usize].map(f64::from));
         b.add_triangles(
-            m.indices.chunks(3).map(|c| [v(c[0]), v(c[1]), v(c[2])]),
+            m.triangles().map(|t| t.map(|v| v.as_dvec3())),
             m.see_through,
         );
     }

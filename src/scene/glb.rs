@@ -19,6 +19,16 @@ pub struct Mesh {
     pub see_through: bool,
 }
 
+impl Mesh {
+    /// The triangles, as corner positions.
+    pub fn triangles(&self) -> impl Iterator<Item = [glam::Vec3; 3]> + '_ {
+        let corner = |i: u32| glam::Vec3::from(self.positions[i as usize]);
+        self.indices
+            .chunks_exact(3)
+            .map(move |c| [corner(c[0]), corner(c[1]), corner(c[2])])
+    }
+}
+
 /// A node of the hierarchy.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Node {

@@ -223,11 +223,7 @@ mod tests {
         let mut m = crate::scene::generate::MeshBuilder::new();
         m.wall_grid(Vec3::ZERO, Vec3::new(12.0, 0.0, 0.0), 9.0, 4, 3);
         let mesh = m.build(false);
-        let tris: Vec<[Vec3; 3]> = mesh
-            .indices
-            .chunks(3)
-            .map(|c| [0, 1, 2].map(|k| Vec3::from(mesh.positions[c[k] as usize])))
-            .collect();
+        let tris: Vec<[Vec3; 3]> = mesh.triangles().collect();
         let polys = merge_coplanar(&tris);
         assert_eq!(polys.len(), 1, "{polys:?}");
         assert_eq!(polys[0].vertices.len(), 4);
@@ -251,11 +247,7 @@ mod tests {
             Vec3::new(10.0, 2.0, 0.0),
         );
         let mesh = m.build(false);
-        let tris: Vec<[Vec3; 3]> = mesh
-            .indices
-            .chunks(3)
-            .map(|c| [0, 1, 2].map(|k| Vec3::from(mesh.positions[c[k] as usize])))
-            .collect();
+        let tris: Vec<[Vec3; 3]> = mesh.triangles().collect();
         let polys = merge_coplanar(&tris);
         let total: f64 = polys.iter().map(|p| p.area()).sum();
         assert!((total - (2.0 * (6.0 + 8.0 + 12.0) + 3.0)).abs() < 1e-9);

@@ -165,6 +165,31 @@ impl Selection {
         out
     }
 
+    /// Culls `view` over the kd-tree with `test` (the method's occlusion
+    /// test), then picks the next frame's occluders from the leaves it saw.
+    pub(crate) fn cull(
+        &mut self,
+        tree: &KdTree,
+        scene: &Scene,
+        occluders: &Occluders,
+        view: &View,
+        test: &mut dyn FnMut(hierarchy::Target, &crate::geom::Aabb) -> Visibility,
+        out: &mut VisibleSet,
+    ) -> CullCounters {
+        let counters = hierarchy::cull(
+            tree,
+            scene,
+            view,
+            self.options.hierarchy,
+            &mut self.marks,
+            test,
+            out,
+            &mut self.leaves,
+        );
+        self.remember(tree, occluders, view.eye);
+        counters
+    }
+
     /// After a frame: pick the next frame's occluders from its visible leaves.
     pub(crate) fn remember(&mut self, tree: &KdTree, occluders: &Occluders, eye: DVec3) {
         let leaves = std::mem::take(&mut self.leaves);
@@ -303,18 +328,13 @@ impl CullMethod for OcclusionTreeCulling {
             Variant::Fme => occlusion.region_visibility(b, LeafTest::Exact),
             Variant::Fmc => occlusion.region_visibility(b, LeafTest::Conservative),
         };
-        let sel = &mut state.selection;
-        let counters = hierarchy::cull(
+        state.selection.cull(
             &self.tree,
             &self.scene,
+            &self.occluders,
             view,
-            sel.options.hierarchy,
-            &mut sel.marks,
             &mut test,
             out,
-            &mut sel.leaves,
-        );
-        sel.remember(&self.tree, &self.occluders, eye);
-        counters
+        )
     }
 }

@@ -35,6 +35,25 @@ impl Visibility {
     }
 }
 
+/// The visibility of a union of parts, combined as they come (Table 1).
+#[derive(Clone, Copy, Debug, Default)]
+struct Combined(Option<Visibility>);
+
+impl Combined {
+    /// Adds a part; true once the union is partially visible, which no
+    /// further part can change.
+    fn add(&mut self, v: Visibility) -> bool {
+        let r = self.0.map_or(v, |r| r.combine(v));
+        self.0 = Some(r);
+        r == Visibility::Partial
+    }
+
+    /// The union's visibility (nothing at all counts as fully visible).
+    fn visibility(self) -> Visibility {
+        self.0.unwrap_or(Visibility::Full)
+    }
+}
+
 /// How an in-leaf decides a region it cannot place wholly on one side of
 /// the fragment's plane (Table 2's last letter).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -269,7 +288,7 @@ impl OcclusionTree {
     /// The modified visibility algorithm (§6.2): the box is never split; at
     /// a plane it crosses, both subtrees are searched.
     pub fn region_visibility(&self, b: &Aabb, leaf_test: LeafTest) -> Visibility {
-        let mut result: Option<Visibility> = None;
+        let mut result = Combined::default();
         // Called for every kd node and object a frame: keep it off the heap
         // while the tree is shallow enough, which it nearly always is.
         let mut stack = SmallStack::new();
@@ -293,13 +312,11 @@ impl OcclusionTree {
                     continue;
                 }
             };
-            let r = result.map_or(v, |r| r.combine(v));
-            if r == Visibility::Partial {
-                return r;
+            if result.add(v) {
+                return Visibility::Partial;
             }
-            result = Some(r);
         }
-        result.unwrap_or(Visibility::Full)
+        result.visibility()
     }
 
     fn leaf_region(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> Visibility {
@@ -351,7 +368,7 @@ impl OcclusionTree {
             // the box holds may still be hidden. Nothing can be concluded.
             return Visibility::Partial;
         }
-        let mut result: Option<Visibility> = None;
+        let mut result = Combined::default();
         for k in 0..3 {
             let at = if e[k] < lo[k] {
                 lo[k]
@@ -375,18 +392,16 @@ impl OcclusionTree {
                 corner(lo[u], hi[w]),
             ]);
             let v = self.polygon_visibility(face);
-            let r = result.map_or(v, |r| r.combine(v));
-            if r == Visibility::Partial {
-                return r;
+            if result.add(v) {
+                return Visibility::Partial;
             }
-            result = Some(r);
         }
-        result.unwrap_or(Visibility::Full)
+        result.visibility()
     }
 
     /// Figure 4: a polygon filtered down the tree, fragments combined.
     fn polygon_visibility(&self, polygon: ConvexPolygon) -> Visibility {
-        let mut result: Option<Visibility> = None;
+        let mut result = Combined::default();
         let mut stack = vec![(0u32, polygon)];
         while let Some((n, p)) = stack.pop() {
             let v = match &self.nodes[n as usize] {
@@ -424,13 +439,11 @@ impl OcclusionTree {
                     continue;
                 }
             };
-            let r = result.map_or(v, |r| r.combine(v));
-            if r == Visibility::Partial {
-                return r;
+            if result.add(v) {
+                return Visibility::Partial;
             }
-            result = Some(r);
         }
-        result.unwrap_or(Visibility::Full)
+        result.visibility()
     }
 }
 

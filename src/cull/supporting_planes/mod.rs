@@ -24,7 +24,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::hierarchy::{self, Target};
+use super::hierarchy::Target;
 use super::occluder::Occluders;
 use super::occlusion_tree::{Selection, SelectionOptions, Visibility, plane_eps, visible_parts};
 use super::{CullCounters, CullMethod, MethodError, MethodOptions, View, VisibleSet};
@@ -296,18 +296,13 @@ impl CullMethod for SupportingPlanesCulling {
             }
             Visibility::Partial
         };
-        let sel = &mut state.selection;
-        let counters = hierarchy::cull(
+        state.selection.cull(
             &self.tree,
             &self.scene,
+            &self.occluders,
             view,
-            sel.options.hierarchy,
-            &mut sel.marks,
             &mut test,
             out,
-            &mut sel.leaves,
-        );
-        sel.remember(&self.tree, &self.occluders, eye);
-        counters
+        )
     }
 }
