@@ -322,6 +322,46 @@ async fn bad_input_is_a_precise_error_and_the_next_request_works() {
 }
 
 #[tokio::test]
+async fn occlusion_methods_answer_over_http_with_a_subset_of_frustum() {
+    let s = state();
+    let (_, frustum) = call(&s, "POST", "/scenes/city/visible", Some(VIEW)).await;
+    for method in ["occlusion_tree", "supporting_planes"] {
+        let body = VIEW.replace(
+            "\"method\":\"frustum\",\"options\":{}",
+            &format!("\"method\":\"{method}\",\"options\":{{\"k\":16}}"),
+        );
+        let (status, v) = call(&s, "POST", "/scenes/city/visible", Some(&body)).await;
+        assert_eq!(status, StatusCode::OK, "{v}");
+        assert_eq!(v["stats"]["method"], method);
+        assert_eq!(
+            v["stats"]["in_frustum"],
+            Value::Null,
+            "occlusion methods do not count it"
+        );
+        let ids: Vec<u64> = v["visible"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_u64().unwrap())
+            .collect();
+        let all: Vec<u64> = frustum["visible"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_u64().unwrap())
+            .collect();
+        assert!(
+            !ids.is_empty() && ids.iter().all(|i| all.contains(i)),
+            "{method}: {ids:?} within {all:?}"
+        );
+        assert!(
+            ids.len() < all.len(),
+            "{method} culls something at street level"
+        );
+    }
+}
+
+#[tokio::test]
 async fn an_unknown_scene_is_404_whatever_the_body() {
     let s = state();
     let (status, body) = call(&s, "POST", "/scenes/nope/visible", Some("{")).await;

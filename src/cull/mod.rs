@@ -160,6 +160,12 @@ pub trait CullMethod: Send + Sync + 'static {
     /// Whether, with this state's options, the method never drops a visible object.
     fn is_conservative(&self, state: &Self::State) -> bool;
 
+    /// Whether a view costs well under ~100 µs, so a server may cull it on
+    /// an async worker; anything else belongs on a blocking thread.
+    fn is_cheap(&self) -> bool {
+        false
+    }
+
     /// Adds the possibly visible objects of `view` to `out` (in any order, repeats allowed).
     fn cull(&self, view: &View, state: &mut Self::State, out: &mut VisibleSet) -> CullCounters;
 }
@@ -202,9 +208,15 @@ pub trait Culler: Send + Sync {
     /// # Panics
     /// When `cache` was made by another method: a caller bug, not bad input.
     fn cull(&self, view: &View, cache: &mut ClientCache, out: &mut VisibleSet) -> CullStats;
+    /// Whether a view costs well under ~100 µs ([`CullMethod::is_cheap`]).
+    fn is_cheap(&self) -> bool;
 }
 
 impl<M: CullMethod> Culler for M {
+    fn is_cheap(&self) -> bool {
+        CullMethod::is_cheap(self)
+    }
+
     fn name(&self) -> &'static str {
         CullMethod::name(self)
     }

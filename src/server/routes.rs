@@ -1,7 +1,9 @@
 //! The handlers, one per route of DESIGN's HTTP API.
 //!
-//! Culling runs on the async worker: frustum culling takes microseconds,
-//! well under the ~100 µs past which work belongs on `spawn_blocking`.
+//! Culling that a method declares cheap (`Culler::is_cheap`: frustum
+//! culling, microseconds) runs on the async worker; anything else runs on
+//! `spawn_blocking`, since past ~100 µs it would stall the worker's other
+//! requests.
 
 use axum::Json;
 use axum::extract::{OriginalUri, Path, State};
@@ -67,8 +69,22 @@ pub async fn visible(
     let req: ViewRequest = parse(&body)?;
     let spec = req.method_spec()?;
     let view = View::new(req.camera(), methods.scene())?;
+    let (method, mut cache) = methods.prepare_client(&spec)?;
     let mut out = VisibleSet::new();
-    let stats = methods.cull_once(&spec, &view, &mut out)?;
+    let stats = if method.is_cheap() {
+        method.cull(&view, &mut cache, &mut out)
+    } else {
+        // Hundreds of microseconds: off the async workers, so one heavy
+        // request does not stall the others sharing the worker.
+        let (stats, done) = tokio::task::spawn_blocking(move || {
+            let stats = method.cull(&view, &mut cache, &mut out);
+            (stats, out)
+        })
+        .await
+        .map_err(|e| ApiError::Internal(format!("cull task failed: {e}")))?;
+        out = done;
+        stats
+    };
     state
         .metrics()
         .observe_cull(&id, stats.method, stats.cull_us * 1e-6, stats.visible);

@@ -61,6 +61,10 @@ impl CullMethod for FrustumCulling {
         true
     }
 
+    fn is_cheap(&self) -> bool {
+        true
+    }
+
     fn cull(&self, view: &View, _: &mut (), out: &mut VisibleSet) -> CullCounters {
         if self.tree.nodes().is_empty() {
             return CullCounters::default();
