@@ -152,7 +152,27 @@ fn union_if_convex(p: &[Vec3], q: &[Vec3], a: Vec3) -> Option<Vec<Vec3>> {
     let mut keys: Vec<Key> = out.iter().map(|&v| key(v)).collect();
     keys.sort_unstable();
     let simple = keys.windows(2).all(|w| w[0] != w[1]);
-    (simple && out.len() >= 3 && is_convex(&out)).then_some(out)
+    (simple && out.len() >= 3 && is_convex(&out) && is_planar(&out)).then_some(out)
+}
+
+/// Whether every corner lies within 2 `f32` ulps of the loop's plane.
+/// Triangles whose planes differ by more (a floor bent by a centimetre)
+/// are not merged: the merged plane would float off the real surface and
+/// hide what lies just above it. Two ulps stay well inside the ground
+/// truth's tie tolerance of eight.
+fn is_planar(loop_: &[Vec3]) -> bool {
+    let n = loop_.len();
+    let v = |i: usize| loop_[i % n].as_dvec3();
+    let Some(normal) = (0..n)
+        .fold(DVec3::ZERO, |acc, i| acc + v(i).cross(v(i + 1)))
+        .try_normalize()
+    else {
+        return false;
+    };
+    let centroid = (0..n).map(v).sum::<DVec3>() / n as f64;
+    let magnitude = (0..n).map(|i| v(i).abs().max_element()).fold(0.0, f64::max);
+    let tolerance = 2.0 * f32::EPSILON as f64 * magnitude;
+    (0..n).all(|i| normal.dot(v(i) - centroid).abs() <= tolerance)
 }
 
 /// Whether `q` has the edge `b → a`.
@@ -228,6 +248,20 @@ mod tests {
         assert_eq!(polys.len(), 1, "{polys:?}");
         assert_eq!(polys[0].vertices.len(), 4);
         assert!((polys[0].area() - 108.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_bent_floor_stays_two_triangles() {
+        // Review finding: both halves had the same rounded plane key, merged
+        // into one quad whose plane floated 1 cm above the real floor.
+        let (a, b, c, d) = (
+            Vec3::new(-500.0, -500.0, 0.0),
+            Vec3::new(500.0, -500.0, 0.0),
+            Vec3::new(500.0, 500.0, 0.0),
+            Vec3::new(-500.0, 500.0, 0.04),
+        );
+        let polys = merge_coplanar(&[[a, b, c], [a, c, d]]);
+        assert_eq!(polys.len(), 2, "{polys:?}");
     }
 
     #[test]

@@ -229,7 +229,8 @@ impl OcclusionTree {
         (0..v.len())
             .map(|i| {
                 let (a, b) = (v[i], v[(i + 1) % v.len()]);
-                let n = (a - self.eye).cross(b - self.eye);
+                // (a − eye) × (b − a): no cancellation when a and b are close.
+                let n = (a - self.eye).cross(b - a);
                 let p = Plane::from_point_normal(self.eye, n)?;
                 let p = if p.signed_distance(inside) > 0.0 {
                     p.flipped()
@@ -244,6 +245,15 @@ impl OcclusionTree {
 
     /// Replaces out-leaf `n` by the occlusion volume of `poly`.
     fn grow(&mut self, n: u32, poly: Flagged, plane: Plane) {
+        // A fragment barely larger than the tolerance has shadow planes that
+        // rounding can tilt or flip; leaving the leaf lit is always safe.
+        let v = &poly.vertices;
+        let size = (0..v.len())
+            .map(|i| v[i].distance(v[(i + 1) % v.len()]))
+            .fold(0.0, f64::max);
+        if size < 1e3 * self.eps {
+            return;
+        }
         let Some(planes) = self.shadow_planes(&poly.vertices, &plane) else {
             return;
         };
@@ -424,8 +434,21 @@ impl OcclusionTree {
                     }
                 }
                 Node::Inner { plane, front, back } => {
+                    let (lo, hi) =
+                        p.vertices
+                            .iter()
+                            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+                                let d = plane.signed_distance(*v);
+                                (l.min(d), h.max(d))
+                            });
                     let s = p.split(plane, self.eps);
-                    if s.coplanar {
+                    // A sliver thinner than eps on one side of a polygon that
+                    // lies beyond eps on the other is dropped by the split;
+                    // send such a polygon whole to both subtrees instead.
+                    let tiny = 1e-3 * self.eps;
+                    let sliver = (hi > tiny && hi <= self.eps && lo < -self.eps)
+                        || (lo < -tiny && lo >= -self.eps && hi > self.eps);
+                    if s.coplanar || sliver {
                         stack.push((*back, p.clone()));
                         stack.push((*front, p));
                     } else {
@@ -456,8 +479,8 @@ fn box_range(plane: &Plane, b: &Aabb) -> (f64, f64) {
     (d - e, d + e)
 }
 
-/// Splits a flagged polygon by a shadow plane. Edges lying in the plane, and
-/// the new edge along it, are flagged in both parts.
+/// Splits a flagged polygon by a shadow plane. An edge on the plane (on or
+/// outside the part's side, see [`on_or_outside`]) is flagged in that part.
 fn split_flagged(p: &Flagged, plane: &Plane, eps: f64) -> (Option<Flagged>, Option<Flagged>) {
     let d: Vec<f64> = p
         .vertices
@@ -469,10 +492,10 @@ fn split_flagged(p: &Flagged, plane: &Plane, eps: f64) -> (Option<Flagged>, Opti
         return (None, None);
     }
     if d.iter().all(|&x| x >= -eps) {
-        return (Some(flag_on_plane(p, &d, eps)), None);
+        return (Some(flag_on_plane(p, &d, 1.0, eps)), None);
     }
     if d.iter().all(|&x| x <= eps) {
-        return (None, Some(flag_on_plane(p, &d, eps)));
+        return (None, Some(flag_on_plane(p, &d, -1.0, eps)));
     }
     (
         clip_side(p, plane, &d, 1.0, eps),
@@ -498,11 +521,11 @@ fn clip_side(p: &Flagged, plane: &Plane, d: &[f64], sign: f64, eps: f64) -> Opti
         if da >= -eps {
             let along_edge = db >= -eps || leaving;
             out.vertices.push(a);
-            out.flags.push(if along_edge { p.flags[i] } else { true });
+            out.flags.push(along_edge && p.flags[i]);
         }
         if leaving || entering {
             out.vertices.push(a + (b - a) * (d[i] / (d[i] - d[j])));
-            out.flags.push(if entering { p.flags[i] } else { true });
+            out.flags.push(entering && p.flags[i]);
         }
     }
     if out.vertices.len() < 3 {
@@ -511,23 +534,34 @@ fn clip_side(p: &Flagged, plane: &Plane, d: &[f64], sign: f64, eps: f64) -> Opti
     let m = out.vertices.len();
     for i in 0..m {
         let (a, b) = (out.vertices[i], out.vertices[(i + 1) % m]);
-        if plane.signed_distance(a).abs() <= eps && plane.signed_distance(b).abs() <= eps {
+        if on_or_outside(plane.signed_distance(a), sign, eps)
+            && on_or_outside(plane.signed_distance(b), sign, eps)
+        {
             out.flags[i] = true;
         }
     }
     Some(out)
 }
 
-/// The polygon with every edge that lies in `plane` (distances `d`) flagged.
-fn flag_on_plane(p: &Flagged, d: &[f64], eps: f64) -> Flagged {
+/// The polygon with every edge that lies on `plane` (distances `d`), on or
+/// outside side `sign`, flagged.
+fn flag_on_plane(p: &Flagged, d: &[f64], sign: f64, eps: f64) -> Flagged {
     let n = p.vertices.len();
     let mut out = p.clone();
     for i in 0..n {
-        if d[i].abs() <= eps && d[(i + 1) % n].abs() <= eps {
+        if on_or_outside(d[i], sign, eps) && on_or_outside(d[(i + 1) % n], sign, eps) {
             out.flags[i] = true;
         }
     }
     out
+}
+
+/// Whether a point at distance `d` lies on the plane or outside the cell on
+/// side `sign`, up to rounding. Only then may its edge go without a shadow
+/// plane of its own: the path's plane bounds the cell at least as tightly.
+/// An edge even slightly inside the cell keeps its own plane.
+fn on_or_outside(d: f64, sign: f64, eps: f64) -> bool {
+    d * sign <= 1e-3 * eps
 }
 
 /// A stack of node indices on the call stack, spilling to the heap only

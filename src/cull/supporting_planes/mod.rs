@@ -108,11 +108,20 @@ impl SupportingPlanesCulling {
             o.plane.flipped()
         };
         let v = &part.vertices;
+        // A part barely larger than the tolerance has edge planes that
+        // rounding can tilt or flip; not using it is always safe.
+        let size = (0..v.len())
+            .map(|i| v[i].distance(v[(i + 1) % v.len()]))
+            .fold(0.0, f64::max);
+        if size < 1e3 * eps {
+            return None;
+        }
+        let v = &part.vertices;
         let inner = part.centroid();
         let edges = (0..v.len())
             .map(|e| {
                 let p =
-                    Plane::from_point_normal(eye, (v[e] - eye).cross(v[(e + 1) % v.len()] - eye))?;
+                    Plane::from_point_normal(eye, (v[e] - eye).cross(v[(e + 1) % v.len()] - v[e]))?;
                 Some(if p.signed_distance(inner) > 0.0 {
                     p.flipped()
                 } else {
