@@ -52,7 +52,6 @@ pub(super) fn occluder_polygons(scene: &Scene) -> Vec<Occluder> {
                 plane,
                 area,
                 bounds,
-                object: o.id,
             });
         }
     }

@@ -37,8 +37,6 @@ pub struct Occluder {
     pub centroid: DVec3,
     /// Its bounding box.
     pub bounds: Aabb,
-    /// The object it belongs to.
-    pub object: u32,
 }
 
 /// A scene's occluders and, per kd leaf, the occluders that reach into it.
