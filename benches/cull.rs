@@ -9,15 +9,14 @@ use std::sync::Arc;
 use criterion::{Criterion, criterion_group, criterion_main};
 use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
 use pvsd::eval::{WalkKind, WalkParams, walk};
-use pvsd::scene::generate::{OfficeOptions, office};
-use pvsd::scene::load_slice;
+use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
+use pvsd::scene::{Scene, load_slice};
 
-fn office_walk(c: &mut Criterion) {
-    let glb = office(&OfficeOptions::default()).to_glb();
-    let scene = Arc::new(load_slice("office", &glb, None, Path::new("office.glb")).unwrap());
+/// Times each of `specs` on the frames of one walk through `scene`.
+fn bench_walk(c: &mut Criterion, group: &str, scene: Arc<Scene>, kind: WalkKind, specs: &[&str]) {
     let methods = SceneMethods::prepare(scene.clone());
     let params = WalkParams {
-        kind: WalkKind::Random,
+        kind,
         frames: 60,
         ..WalkParams::default()
     };
@@ -26,13 +25,8 @@ fn office_walk(c: &mut Criterion) {
         .into_iter()
         .map(|cam| View::new(cam, &scene).unwrap())
         .collect();
-    let mut group = c.benchmark_group("office_random_walk_frame");
-    for spec in [
-        "frustum",
-        "occlusion_tree:k=32",
-        "occlusion_tree:k=32:variant=fmc",
-        "supporting_planes:k=32",
-    ] {
+    let mut group = c.benchmark_group(group);
+    for spec in specs {
         let spec: MethodSpec = spec.parse().unwrap();
         let (method, mut cache) = methods.prepare_client(&spec).unwrap();
         let mut out = VisibleSet::new();
@@ -48,5 +42,41 @@ fn office_walk(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, office_walk);
+fn office_walk(c: &mut Criterion) {
+    let glb = office(&OfficeOptions::default()).to_glb();
+    let scene = Arc::new(load_slice("office", &glb, None, Path::new("office.glb")).unwrap());
+    let specs = [
+        "frustum",
+        "occlusion_tree:k=32",
+        "occlusion_tree:k=32:variant=fmc",
+        "supporting_planes:k=32",
+    ];
+    bench_walk(
+        c,
+        "office_random_walk_frame",
+        scene,
+        WalkKind::Random,
+        &specs,
+    );
+}
+
+/// Downs et al.'s setting: a 10k-building city seen from its streets.
+fn city10k_walk(c: &mut Criterion) {
+    let opts = CityOptions {
+        buildings: 10_000,
+        ..CityOptions::default()
+    };
+    let glb = city(&opts).to_glb();
+    let scene = Arc::new(load_slice("city10k", &glb, None, Path::new("city10k.glb")).unwrap());
+    let specs = ["frustum", "horizon", "horizon:min_area=4"];
+    bench_walk(
+        c,
+        "city10k_street_walk_frame",
+        scene,
+        WalkKind::Street,
+        &specs,
+    );
+}
+
+criterion_group!(benches, office_walk, city10k_walk);
 criterion_main!(benches);

@@ -359,6 +359,7 @@ fn query(args: QueryArgs) -> anyhow::Result<()> {
     if args.json {
         let body = VisibleResponse {
             visible: out.ids().to_vec(),
+            areas: out.areas(),
             stats: StatsBody::from(stats),
         };
         println!("{}", serde_json::to_string(&body)?);

@@ -59,7 +59,12 @@ async fn health_scenes_and_objects() {
     assert_eq!(scenes[0].up, [0.0, 1.0, 0.0]);
     assert_eq!(
         scenes[0].methods,
-        vec!["frustum", "occlusion_tree", "supporting_planes"]
+        vec!["frustum", "horizon", "occlusion_tree", "supporting_planes"]
+    );
+    assert!(
+        scenes[0].unsupported.is_empty(),
+        "{:?}",
+        scenes[0].unsupported
     );
     let (status, body) = call(&s, "GET", "/scenes/city/objects", None).await;
     assert_eq!(status, StatusCode::OK);
@@ -266,7 +271,7 @@ fn bad_requests() -> Vec<(&'static str, String, StatusCode, &'static str, &'stat
         ),
         (
             "/scenes/city/visible",
-            view(json!({"method": "horizon"})),
+            view(json!({"method": "ddo"})),
             bad,
             "unsupported_method",
             "it supports: frustum",
@@ -359,6 +364,45 @@ async fn occlusion_methods_answer_over_http_with_a_subset_of_frustum() {
             "{method} culls something at street level"
         );
     }
+}
+
+#[tokio::test]
+async fn horizon_answers_with_areas_when_asked_and_scenes_say_why_not() {
+    let s = state();
+    let body = VIEW.replace(
+        "\"method\":\"frustum\",\"options\":{}",
+        "\"method\":\"horizon\",\"options\":{\"areas\":true}",
+    );
+    let (status, v) = call(&s, "POST", "/scenes/city/visible", Some(&body)).await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    let answer: VisibleResponse = serde_json::from_value(v).unwrap();
+    let areas = answer.areas.expect("areas asked for");
+    assert_eq!(areas.len(), answer.visible.len());
+    assert!(areas.iter().all(|&a| (0.0..=1024.0 * 768.0).contains(&a)));
+    // Without the option the field is absent.
+    let plain = VIEW.replace("\"method\":\"frustum\"", "\"method\":\"horizon\"");
+    let (_, v) = call(&s, "POST", "/scenes/city/visible", Some(&plain)).await;
+    assert!(v.get("areas").is_none(), "{v}");
+
+    // A scene with no height field lists no horizon, and says why.
+    let mut b = pvsd::scene::SceneBuilder::new("floating");
+    b.begin_object("a", None);
+    b.add_triangles(
+        [
+            [glam::DVec3::ZERO, glam::DVec3::X, glam::DVec3::Z],
+            [glam::DVec3::Y, glam::DVec3::ONE, glam::DVec3::Z],
+        ],
+        false,
+    );
+    let s = AppState::new(vec![Arc::new(b.finish())], Limits::default()).unwrap();
+    let (_, v) = call(&s, "GET", "/scenes", None).await;
+    let scenes: Vec<SceneInfo> = serde_json::from_value(v).unwrap();
+    assert!(!scenes[0].methods.contains(&"horizon".to_string()));
+    assert!(scenes[0].unsupported["horizon"].contains("height field"));
+    let body = VIEW.replace("\"method\":\"frustum\"", "\"method\":\"horizon\"");
+    let (status, v) = call(&s, "POST", "/scenes/floating/visible", Some(&body)).await;
+    assert_eq!(status, StatusCode::BAD_REQUEST, "{v}");
+    assert_eq!(v["error"]["code"], "unsupported_method");
 }
 
 #[tokio::test]

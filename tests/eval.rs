@@ -341,7 +341,7 @@ fn eval_command_writes_json_and_svg() {
             "--scene",
             scene.to_str().unwrap(),
             "--methods",
-            "horizon",
+            "ddo",
         ])
         .output()
         .unwrap();

@@ -63,10 +63,9 @@ fn conservative_far_from_the_origin() {
 #[test]
 fn methods_are_listed_only_where_there_are_occluders() {
     let office = SceneMethods::prepare(office_scene(1, [0.0; 3]));
-    assert_eq!(
-        office.names(),
-        ["frustum", "occlusion_tree", "supporting_planes"]
-    );
+    for m in ["frustum", "occlusion_tree", "supporting_planes"] {
+        assert!(office.names().contains(&m), "{:?}", office.names());
+    }
     // A scene of points and segments has no polygon to hide anything.
     let mut b = pvsd::scene::SceneBuilder::new("dust");
     b.begin_object("speck", None);

@@ -13,6 +13,7 @@
 
 pub mod frustum;
 mod hierarchy;
+pub mod horizon;
 pub mod occluder;
 pub mod occlusion_tree;
 mod spec;
@@ -54,9 +55,14 @@ impl View {
 }
 
 /// The ids a method found possibly visible; sorted ascending once finished.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+///
+/// A method that estimates screen areas (the horizon's LOD option) adds
+/// each id with [`VisibleSet::push_with_area`]; then [`VisibleSet::areas`]
+/// holds one bound per id, in the same order.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct VisibleSet {
     ids: Vec<u32>,
+    areas: Vec<(u32, f64)>,
 }
 
 impl VisibleSet {
@@ -68,11 +74,18 @@ impl VisibleSet {
     /// Empties the set, keeping its allocation for the next frame.
     pub fn clear(&mut self) {
         self.ids.clear();
+        self.areas.clear();
     }
 
     /// Adds an id (repeats are removed by [`VisibleSet::finish`]).
     pub fn push(&mut self, id: u32) {
         self.ids.push(id);
+    }
+
+    /// Adds an id with an upper bound of the pixels it covers.
+    pub fn push_with_area(&mut self, id: u32, pixels: f64) {
+        self.ids.push(id);
+        self.areas.push((id, pixels));
     }
 
     /// Adds ids (repeats are removed by [`VisibleSet::finish`]).
@@ -81,14 +94,29 @@ impl VisibleSet {
     }
 
     /// Keeps only the ids `keep` accepts (aggressive methods drop objects this way).
-    pub fn retain(&mut self, keep: impl FnMut(&u32) -> bool) {
-        self.ids.retain(keep);
+    pub fn retain(&mut self, mut keep: impl FnMut(&u32) -> bool) {
+        self.ids.retain(&mut keep);
+        self.areas.retain(|(id, _)| keep(id));
     }
 
     /// Sorts and removes repeats: an object held by two kd leaves is reported once.
     pub fn finish(&mut self) {
         self.ids.sort_unstable();
         self.ids.dedup();
+        if !self.areas.is_empty() {
+            // One bound per id: the largest of its repeats.
+            self.areas
+                .sort_unstable_by(|a, b| a.0.cmp(&b.0).then(b.1.total_cmp(&a.1)));
+            self.areas.dedup_by_key(|a| a.0);
+            debug_assert_eq!(self.areas.len(), self.ids.len());
+        }
+    }
+
+    /// Pixel bounds, one per id in [`VisibleSet::ids`] order, when the
+    /// method gave them (finished sets only).
+    pub fn areas(&self) -> Option<Vec<f64>> {
+        (!self.areas.is_empty() && self.areas.len() == self.ids.len())
+            .then(|| self.areas.iter().map(|a| a.1).collect())
     }
 
     /// The ids (sorted once finished).
@@ -264,6 +292,7 @@ impl<M: CullMethod> Culler for M {
 pub struct SceneMethods {
     scene: Arc<Scene>,
     methods: Vec<Arc<dyn Culler>>,
+    unsupported: Vec<(&'static str, String)>,
 }
 
 impl SceneMethods {
@@ -274,6 +303,13 @@ impl SceneMethods {
             scene.clone(),
             tree.clone(),
         ))];
+        let mut unsupported = Vec::new();
+        // Horizons only where the scene stands on a ground as a height
+        // field; no prisms or quadtree are kept otherwise.
+        match horizon::HorizonCulling::new(scene.clone()) {
+            Ok(h) => methods.push(Arc::new(h)),
+            Err(why) => unsupported.push(("horizon", why)),
+        }
         // The occlusion methods only where the scene has occluders; no
         // occluder data is kept otherwise.
         if let Some(occluders) = occluder::Occluders::find(&scene, &tree).map(Arc::new) {
@@ -287,8 +323,22 @@ impl SceneMethods {
                 tree,
                 occluders,
             )));
+        } else {
+            let why = "no opaque planar occluder is large enough against the scene".to_string();
+            unsupported.push(("occlusion_tree", why.clone()));
+            unsupported.push(("supporting_planes", why));
         }
-        SceneMethods { scene, methods }
+        SceneMethods {
+            scene,
+            methods,
+            unsupported,
+        }
+    }
+
+    /// Methods of DESIGN's list this scene does not support, with why
+    /// (`ddo` and `gpu`, not built yet, are not listed).
+    pub fn unsupported(&self) -> &[(&'static str, String)] {
+        &self.unsupported
     }
 
     /// The scene.

@@ -35,6 +35,11 @@ pub async fn scenes(State(state): State<AppState>) -> Json<Vec<SceneInfo>> {
                     bounds: (!s.bounds().is_empty()).then(|| Bounds::new(s.to_world(&s.bounds()))),
                     up: s.up().to_array(),
                     methods: m.names().into_iter().map(String::from).collect(),
+                    unsupported: m
+                        .unsupported()
+                        .iter()
+                        .map(|(name, why)| (name.to_string(), why.clone()))
+                        .collect(),
                 }
             })
             .collect(),
@@ -90,6 +95,7 @@ pub async fn visible(
         .observe_cull(&id, stats.method, stats.cull_us * 1e-6, stats.visible);
     Ok(Json(VisibleResponse {
         visible: out.ids().to_vec(),
+        areas: out.areas(),
         stats: stats.into(),
     }))
 }

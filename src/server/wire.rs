@@ -1,6 +1,8 @@
 //! The JSON bodies of the HTTP API (DESIGN "HTTP API"), and their conversion
 //! to and from the library's types. Only the server knows serde's shapes.
 
+use std::collections::BTreeMap;
+
 use glam::DVec3;
 use serde::{Deserialize, Deserializer, Serialize};
 
@@ -162,6 +164,9 @@ pub struct SceneInfo {
     pub up: [f32; 3],
     /// Methods it supports (`auto` is always accepted besides).
     pub methods: Vec<String>,
+    /// Methods it does not support, each with why (e.g. `horizon` on a
+    /// scene that is no height field over a ground).
+    pub unsupported: BTreeMap<String, String>,
 }
 
 /// One entry of `GET /scenes/{id}/objects`.
@@ -208,6 +213,10 @@ impl From<CullStats> for StatsBody {
 pub struct VisibleResponse {
     /// Possibly visible object ids, ascending.
     pub visible: Vec<u32>,
+    /// Per id of `visible`, an upper bound of the pixels it covers; only
+    /// when the method was asked for them (`horizon` with `areas=true`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub areas: Option<Vec<f64>>,
     /// What it cost.
     pub stats: StatsBody,
 }

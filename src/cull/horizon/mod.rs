@@ -1,0 +1,506 @@
+//! `horizon`: occlusion horizons for cities seen from the street (Downs,
+//! Möller, Séquin 2001).
+//!
+//! Per view, a plane sweeps away from the eye along the horizontal view
+//! direction `d` (§3.5). An event queue orders the sweep: quadtree cells and
+//! objects are *tested* when the plane first touches their box, prisms are
+//! *added* when it has passed their far side. A box is hidden when its
+//! bounding frame on the vertical plane at distance 1 along `d` lies below
+//! the horizon ([`Horizon`]); otherwise a cell opens its objects and
+//! children, and an object is visible and queues its prisms' masks.
+//!
+//! Why a mask may hide what lies behind it. A prism `C × [G, top]` lies inside
+//! its object's opaque surface ([`prism`]), every object lies at or above
+//! the ground level `G`, and the eye is outside the object's box and not
+//! below `G`. Its mask covers the screen columns of `C`'s silhouette up to
+//! the lowest projected corner of its top, and is added at `ev`, the
+//! farthest depth of `C`. A ray in those columns below that height either
+//! passes through the prism before `ev` (so through the object's surface), or
+//! is below `G` at every depth beyond `ev`, where no object is. Objects are
+//! tested at their nearest depth, which is not before `ev`, so every point
+//! of theirs on such a ray is behind the surface. Ties in depth are broken
+//! tests first.
+//!
+//! Tilted and vertical views (§3.7): the horizon lives on the vertical
+//! plane whatever the pitch; only the window of screen x changes. When all
+//! four edges of the frustum point forward along `d`, the window is their x
+//! range and a frame is only compared over its part inside it (the rest is
+//! outside the frustum). When some edge does not (looking steeply up or
+//! down), the window is a fixed wide range and a frame leaving it is
+//! visible; a box reaching the eye's vertical plane (depth ≈ 0, the
+//! near-vertical part of the view) is never projected and gets frustum
+//! culling only. With the eye below `G`, the view is frustum culled.
+//!
+//! Levels of detail (§3.6): with `areas=true` each visible object carries an
+//! upper bound of the pixels it can cover: the pixel centres inside the
+//! smaller of its box's screen rectangle and the screen rectangle of its
+//! frame's part above the horizon. `min_area=N` drops objects whose bound
+//! is below N pixels (an aggressive setting: it reports misses in eval).
+
+pub mod prism;
+mod tree;
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+use std::sync::Arc;
+
+use glam::DVec3;
+
+pub use prism::{Prism, Prisms};
+pub use tree::{Horizon, Opening};
+
+use crate::cull::{
+    CullCounters, CullMethod, InFrustum, MethodError, MethodOptions, View, VisibleSet,
+};
+use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
+use crate::scene::Scene;
+use crate::spatial::QuadTree;
+
+const OPTIONS: &[&str] = &["areas", "min_area", "columns"];
+
+/// A depth is usable for projection when it exceeds this share of the
+/// point's distance: far above the rounding of the depth itself.
+const DEPTH_EPSILON: f64 = 1e-9;
+
+/// The window of screen x when the frustum reaches the eye's vertical plane
+/// (about ±89°): wider views fall back to frustum culling at the sides.
+const WIDE_WINDOW: f64 = 64.0;
+
+/// Occlusion horizons over a quadtree of the scene, with the prisms proven
+/// inside its objects.
+pub struct HorizonCulling {
+    scene: Arc<Scene>,
+    quadtree: QuadTree,
+    prisms: Prisms,
+}
+
+impl HorizonCulling {
+    /// The method for `scene`, or why the scene is no height field for it.
+    pub fn new(scene: Arc<Scene>) -> Result<HorizonCulling, String> {
+        let prisms = Prisms::find(&scene)?;
+        let quadtree = QuadTree::build(&scene);
+        Ok(HorizonCulling {
+            scene,
+            quadtree,
+            prisms,
+        })
+    }
+
+    /// The prisms it occludes with.
+    pub fn prisms(&self) -> &Prisms {
+        &self.prisms
+    }
+
+    /// The quadtree it sweeps.
+    pub fn quadtree(&self) -> &QuadTree {
+        &self.quadtree
+    }
+}
+
+/// A client's state: its options, and the buffers one sweep needs (kept
+/// between frames so a session allocates nothing per frame).
+pub struct HorizonState {
+    areas: bool,
+    min_area: f64,
+    horizon: Horizon,
+    /// The frame number each object was last reported in (§3.3's stamps).
+    stamps: Vec<u32>,
+    frame: u32,
+    queue: BinaryHeap<Event>,
+    masks: Vec<Mask>,
+}
+
+/// A prism's rectangular mask (§3.4, Fig. 4c).
+#[derive(Clone, Copy, Debug)]
+struct Mask {
+    x_lo: f64,
+    x_hi: f64,
+    height: f64,
+}
+
+/// A box's bounding frame on the view plane.
+#[derive(Clone, Copy, Debug)]
+struct Frame {
+    x_lo: f64,
+    x_hi: f64,
+    y_lo: f64,
+    y_hi: f64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Kind {
+    Cell,
+    Object,
+    /// Added after every test at the same depth.
+    Mask,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Event {
+    depth: f64,
+    kind: Kind,
+    index: u32,
+    planes: PlaneMask,
+}
+
+impl PartialEq for Event {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other) == Ordering::Equal
+    }
+}
+impl Eq for Event {}
+impl PartialOrd for Event {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Event {
+    /// Reversed: the heap pops the nearest event, tests before masks.
+    fn cmp(&self, other: &Self) -> Ordering {
+        other
+            .depth
+            .total_cmp(&self.depth)
+            .then(other.kind.cmp(&self.kind))
+            .then(other.index.cmp(&self.index))
+    }
+}
+
+/// The horizontal view of one camera: the plane the horizon lives on.
+struct Sweep {
+    eye: DVec3,
+    /// Horizontal unit view direction (the sweep's axis).
+    d: DVec3,
+    /// Horizontal unit right: screen x.
+    r: DVec3,
+    /// Whether the window holds the frustum's whole x range.
+    clamped: bool,
+    x0: f64,
+    x1: f64,
+    /// Whether masks may be used at all (the eye is not below the ground).
+    occludes: bool,
+}
+
+impl Sweep {
+    fn new(view: &View, ground: f64) -> Sweep {
+        let basis = view.camera.basis().expect("a validated camera has a basis");
+        let horizontal = |v: DVec3| DVec3::new(v.x, 0.0, v.z);
+        // Straight up or down the forward has no horizontal part; the
+        // image's up then points along the ground.
+        let d = horizontal(basis.forward)
+            .try_normalize()
+            .filter(|_| horizontal(basis.forward).length() > 1e-9)
+            .or_else(|| horizontal(basis.up).try_normalize())
+            .unwrap_or(DVec3::X);
+        let r = DVec3::new(-d.z, 0.0, d.x);
+        let eye = view.eye;
+        let (mut x0, mut x1, mut clamped) = (f64::INFINITY, f64::NEG_INFINITY, true);
+        for c in &view.frustum.corners()[4..] {
+            let rel = *c - eye;
+            let t = rel.dot(d);
+            if t <= DEPTH_EPSILON * rel.abs().max_element() {
+                clamped = false;
+                break;
+            }
+            let x = rel.dot(r) / t;
+            x0 = x0.min(x);
+            x1 = x1.max(x);
+        }
+        if !clamped {
+            (x0, x1) = (-WIDE_WINDOW, WIDE_WINDOW);
+        }
+        let occludes = eye.y >= ground && x0.is_finite() && x1.is_finite() && x0 < x1;
+        Sweep {
+            eye,
+            d,
+            r,
+            clamped,
+            x0,
+            x1,
+            occludes,
+        }
+    }
+
+    /// The nearest depth of a box along `d`.
+    fn near_depth(&self, b: &Aabb) -> f64 {
+        let (lo, hi) = (b.min.as_dvec3() - self.eye, b.max.as_dvec3() - self.eye);
+        (lo * self.d).min(hi * self.d).element_sum()
+    }
+
+    /// The bounding frame of a box, or `None` when it cannot be hidden: it
+    /// reaches the eye's vertical plane, or it leaves a window that does not
+    /// hold the whole frustum.
+    fn frame(&self, b: &Aabb) -> Option<Frame> {
+        let mut f = Frame {
+            x_lo: f64::INFINITY,
+            x_hi: f64::NEG_INFINITY,
+            y_lo: f64::INFINITY,
+            y_hi: f64::NEG_INFINITY,
+        };
+        for c in b.corners() {
+            let rel = c.as_dvec3() - self.eye;
+            let t = rel.dot(self.d);
+            if t.partial_cmp(&(DEPTH_EPSILON * rel.abs().max_element())) != Some(Ordering::Greater)
+            {
+                return None;
+            }
+            let (x, y) = (rel.dot(self.r) / t, rel.y / t);
+            f.x_lo = f.x_lo.min(x);
+            f.x_hi = f.x_hi.max(x);
+            f.y_lo = f.y_lo.min(y);
+            f.y_hi = f.y_hi.max(y);
+        }
+        if !self.clamped && (f.x_lo < self.x0 || f.x_hi > self.x1) {
+            return None;
+        }
+        Some(f)
+    }
+
+    /// The mask of a prism and the depth to add it at, or `None` when some
+    /// corner is not clearly in front of the eye.
+    fn mask(&self, prism: &Prism) -> Option<(Mask, f64)> {
+        let (mut x_lo, mut x_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let (mut near, mut far) = (f64::INFINITY, f64::NEG_INFINITY);
+        let rise = prism.top - self.eye.y;
+        for v in &prism.footprint {
+            let rel = DVec3::new(v.x - self.eye.x, rise, v.y - self.eye.z);
+            let t = rel.dot(self.d);
+            if t.partial_cmp(&(DEPTH_EPSILON * rel.abs().max_element())) != Some(Ordering::Greater)
+            {
+                return None;
+            }
+            let x = rel.dot(self.r) / t;
+            x_lo = x_lo.min(x);
+            x_hi = x_hi.max(x);
+            near = near.min(t);
+            far = far.max(t);
+        }
+        // The lowest projected corner of the top (Fig. 4c).
+        let height = if rise >= 0.0 { rise / far } else { rise / near };
+        Some((Mask { x_lo, x_hi, height }, far))
+    }
+
+    /// The direction of view-plane point `(x, y)`.
+    fn direction(&self, x: f64, y: f64) -> DVec3 {
+        self.d + self.r * x + DVec3::Y * y
+    }
+}
+
+impl CullMethod for HorizonCulling {
+    type State = HorizonState;
+
+    fn name(&self) -> &'static str {
+        "horizon"
+    }
+
+    fn new_state(&self, options: &MethodOptions) -> Result<HorizonState, MethodError> {
+        let r = options.reader("horizon", OPTIONS);
+        let bad = |option: &str, value: String, expected: &str| MethodError::InvalidOption {
+            method: "horizon".into(),
+            option: option.into(),
+            value,
+            expected: expected.into(),
+        };
+        let areas: bool = r.get("areas", false, "true or false")?;
+        let min_area: f64 = r.get("min_area", 0.0, "a pixel count >= 0")?;
+        if !(min_area.is_finite() && min_area >= 0.0) {
+            return Err(bad("min_area", min_area.to_string(), "a pixel count >= 0"));
+        }
+        let columns: usize = r.get("columns", 1024, "a whole number from 16 to 65536")?;
+        if !(16..=65536).contains(&columns) {
+            return Err(bad(
+                "columns",
+                columns.to_string(),
+                "a whole number from 16 to 65536",
+            ));
+        }
+        r.finish()?;
+        Ok(HorizonState {
+            areas,
+            min_area,
+            horizon: Horizon::new(columns),
+            stamps: vec![0; self.scene.objects().len()],
+            frame: 0,
+            queue: BinaryHeap::new(),
+            masks: Vec::new(),
+        })
+    }
+
+    fn is_conservative(&self, state: &HorizonState) -> bool {
+        state.min_area == 0.0
+    }
+
+    fn cull(&self, view: &View, state: &mut HorizonState, out: &mut VisibleSet) -> CullCounters {
+        let mut counters = CullCounters {
+            nodes_tested: 0,
+            in_frustum: InFrustum::Unknown,
+        };
+        let cells = self.quadtree.cells();
+        if cells.is_empty() {
+            return counters;
+        }
+        let sweep = Sweep::new(view, self.prisms.ground());
+        state.horizon.reset(sweep.x0, sweep.x1);
+        state.frame = state.frame.wrapping_add(1);
+        if state.frame == 0 {
+            state.stamps.fill(0);
+            state.frame = 1;
+        }
+        state.queue.clear();
+        state.masks.clear();
+        let lod = state.areas || state.min_area > 0.0;
+        let objects = self.scene.objects();
+        state.queue.push(Event {
+            depth: sweep.near_depth(&cells[0].bounds),
+            kind: Kind::Cell,
+            index: 0,
+            planes: ALL_PLANES,
+        });
+        while let Some(ev) = state.queue.pop() {
+            match ev.kind {
+                Kind::Mask => {
+                    let m = state.masks[ev.index as usize];
+                    state.horizon.insert(m.x_lo, m.x_hi, m.height);
+                }
+                Kind::Cell => {
+                    let cell = &cells[ev.index as usize];
+                    counters.nodes_tested += 1;
+                    let (side, planes) = view.frustum.classify(&cell.bounds, ev.planes);
+                    if side == Side::Outside || self.hidden(&sweep, &state.horizon, &cell.bounds) {
+                        continue;
+                    }
+                    for &o in self.quadtree.objects(cell) {
+                        let b = &objects[o as usize].bounds;
+                        state.queue.push(Event {
+                            depth: sweep.near_depth(b),
+                            kind: Kind::Object,
+                            index: o,
+                            planes,
+                        });
+                    }
+                    for &c in cell.children.iter().filter(|&&c| c != 0) {
+                        state.queue.push(Event {
+                            depth: sweep.near_depth(&cells[c as usize].bounds),
+                            kind: Kind::Cell,
+                            index: c,
+                            planes,
+                        });
+                    }
+                }
+                Kind::Object => {
+                    let o = &objects[ev.index as usize];
+                    if state.stamps[o.id as usize] == state.frame {
+                        continue;
+                    }
+                    state.stamps[o.id as usize] = state.frame;
+                    counters.nodes_tested += 1;
+                    if view.frustum.classify_exact(&o.bounds, ev.planes).0 == Side::Outside {
+                        continue;
+                    }
+                    let frame = sweep.occludes.then(|| sweep.frame(&o.bounds)).flatten();
+                    if let Some(f) = frame {
+                        if state.horizon.hides(f.x_lo, f.x_hi, f.y_hi) {
+                            continue;
+                        }
+                    }
+                    let area =
+                        lod.then(|| area_bound(view, &sweep, &state.horizon, &o.bounds, frame));
+                    match area {
+                        Some(a) if a < state.min_area => {}
+                        Some(a) if state.areas => out.push_with_area(o.id, a),
+                        _ => out.push(o.id),
+                    }
+                    // Even a dropped object occludes: its prisms are real.
+                    if sweep.occludes && !contains(&o.bounds, sweep.eye) {
+                        for prism in self.prisms.of(o.id) {
+                            if let Some((mask, far)) = sweep.mask(prism) {
+                                state.queue.push(Event {
+                                    depth: far,
+                                    kind: Kind::Mask,
+                                    index: state.masks.len() as u32,
+                                    planes: 0,
+                                });
+                                state.masks.push(mask);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        counters
+    }
+}
+
+impl HorizonCulling {
+    /// Whether a box is wholly below the horizon.
+    fn hidden(&self, sweep: &Sweep, horizon: &Horizon, b: &Aabb) -> bool {
+        sweep.occludes
+            && sweep
+                .frame(b)
+                .is_some_and(|f| horizon.hides(f.x_lo, f.x_hi, f.y_hi))
+    }
+}
+
+/// Whether the closed box holds the point (in `f64`, no rounding of the eye).
+fn contains(b: &Aabb, p: DVec3) -> bool {
+    let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+    p.cmpge(lo).all() && p.cmple(hi).all()
+}
+
+/// An upper bound of the pixels a visible box can show (module docs, §3.6).
+fn area_bound(
+    view: &View,
+    sweep: &Sweep,
+    horizon: &Horizon,
+    b: &Aabb,
+    frame: Option<Frame>,
+) -> f64 {
+    let cam = &view.camera;
+    let basis = cam.basis().expect("a validated camera has a basis");
+    let (tx, ty) = cam.half_tangents();
+    let [w, h] = cam.viewport.map(f64::from);
+    let whole = w * h;
+    // Pixel coordinates of a direction, when it points ahead of the camera.
+    let pixel = |v: DVec3| -> Option<(f64, f64)> {
+        let z = v.dot(basis.forward);
+        (z > DEPTH_EPSILON * v.length()).then(|| {
+            (
+                (v.dot(basis.right) / (z * tx) + 1.0) * 0.5 * w,
+                (1.0 - v.dot(basis.up) / (z * ty)) * 0.5 * h,
+            )
+        })
+    };
+    // Pixel centres (i + 0.5, j + 0.5) inside the rectangle around the points.
+    let centres = |points: &mut dyn Iterator<Item = Option<(f64, f64)>>| -> f64 {
+        let (mut x0, mut y0, mut x1, mut y1) = (
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        );
+        for p in points {
+            let Some((x, y)) = p else { return whole };
+            (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+        }
+        let span = |lo: f64, hi: f64, n: f64| {
+            let first = (lo - 0.5 - 1e-6).ceil().max(0.0);
+            let last = (hi - 0.5 + 1e-6).floor().min(n - 1.0);
+            (last - first + 1.0).max(0.0)
+        };
+        span(x0, x1, w) * span(y0, y1, h)
+    };
+    let eye = view.eye;
+    let mut bound = centres(&mut b.corners().iter().map(|c| pixel(c.as_dvec3() - eye)));
+    if let Some(f) = frame {
+        if let Some(open) = horizon.opening(f.x_lo, f.x_hi, f.y_hi) {
+            let (x0, x1) = (open.x_lo.max(f.x_lo), open.x_hi.min(f.x_hi));
+            let (y0, y1) = (open.floor.max(f.y_lo), f.y_hi);
+            let above = centres(
+                &mut [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+                    .into_iter()
+                    .map(|(x, y)| pixel(sweep.direction(x, y))),
+            );
+            bound = bound.min(above);
+        }
+    }
+    bound
+}

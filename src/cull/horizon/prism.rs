@@ -1,0 +1,616 @@
+//! Convex vertical prisms (CVPs) inside objects (Downs et al. §3.1–3.2).
+//!
+//! A prism is a convex footprint in (x, z) standing on the scene's ground
+//! level `G` (the lowest point of any object) up to a `top`. The horizon may
+//! only use a prism that lies inside its object's solid; this module builds
+//! prisms and *proves* that, from the object's opaque surfaces alone:
+//!
+//! 1. The object's opaque triangles are sorted by plane: vertical ones are
+//!    walls, horizontal ones roofs.
+//! 2. The largest wall triangle fixes a frame (u, w) of the building (a city
+//!    rotated 15° keeps its walls on the frame's axes); the walls' lines cut
+//!    the footprint into a grid of cells.
+//! 3. The sweep from the ground up (§3.2): each cell takes the highest roof
+//!    that covers all of it, and steps down to the next while step 4 fails.
+//! 4. Proof: the cells with a height make a union `U` of boxes on the ground.
+//!    Each face of `U`'s boundary above the ground (each cell's top, and each
+//!    side where the neighbour is lower or outside) must be covered by the
+//!    object's triangles in that face's plane: no edge on the boundary of
+//!    those triangles (used an odd number of times) enters the face, so the
+//!    number of triangles over its points is the same everywhere mod 2, and
+//!    it is odd at one point. Then `U`'s whole boundary above `G` is opaque
+//!    surface, so a ray from an eye outside the object's box and not below
+//!    `G` crosses that surface before it reaches the inside of `U`.
+//! 5. The largest rectangles of cells at a few heights (the paper's "maximum
+//!    rectangle that can be inscribed") become up to [`MAX_PRISMS`] prisms,
+//!    shrunk by a margin so that they lie strictly inside `U`.
+//!
+//! Containment and coplanarity are checked to a few `f32` ulps of the
+//! object's coordinates: the geometry is no more exact than that. An object
+//! with nothing provable (an open mesh, a floating box, a see-through shell,
+//! a sphere) gets no prism and only ever occludes nothing.
+
+use std::collections::HashMap;
+use std::ops::Range;
+
+use glam::{DVec2, DVec3, Vec3};
+use rayon::prelude::*;
+
+use crate::scene::{Object, Scene};
+
+/// At most this many prisms per object (the paper: "a small set").
+pub const MAX_PRISMS: usize = 3;
+
+/// Objects whose walls cut the footprint into more lines than this per axis
+/// are not searched (detailed models: the grid would grow quadratically).
+const MAX_LINES: usize = 16;
+
+/// A convex vertical prism from the ground level up to `top`, scene-local.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Prism {
+    /// The footprint's corners in (x, z), in order around it.
+    pub footprint: Vec<DVec2>,
+    /// Height of the prism's top.
+    pub top: f64,
+}
+
+/// The prisms of a scene's objects, and the ground level they stand on.
+#[derive(Clone, Debug)]
+pub struct Prisms {
+    ground: f64,
+    prisms: Vec<Prism>,
+    /// Per object id, its range of `prisms`.
+    ranges: Vec<Range<u32>>,
+}
+
+impl Prisms {
+    /// Prisms for every object of `scene` that provably holds some, or why
+    /// the scene has none (the reason `/scenes` gives for not listing `horizon`).
+    pub fn find(scene: &Scene) -> Result<Prisms, String> {
+        let ground = scene
+            .objects()
+            .iter()
+            .filter(|o| !o.bounds.is_empty())
+            .map(|o| o.bounds.min.y as f64)
+            .fold(f64::INFINITY, f64::min);
+        if !ground.is_finite() {
+            return Err("the scene has no geometry".into());
+        }
+        let per_object: Vec<Vec<Prism>> = scene
+            .objects()
+            .par_iter()
+            .map(|o| object_prisms(scene, o, ground))
+            .collect();
+        let mut prisms = Vec::new();
+        let mut ranges = Vec::with_capacity(per_object.len());
+        for list in per_object {
+            let start = prisms.len() as u32;
+            prisms.extend(list);
+            ranges.push(start..prisms.len() as u32);
+        }
+        if prisms.is_empty() {
+            return Err(format!(
+                "no object is an opaque closed solid standing on the ground (y = {:.6} locally): \
+                 no convex vertical prisms, so the scene is not a height field for occlusion horizons",
+                ground
+            ));
+        }
+        Ok(Prisms {
+            ground,
+            prisms,
+            ranges,
+        })
+    }
+
+    /// The ground level `G`: no object reaches below it; every prism stands on it.
+    pub fn ground(&self) -> f64 {
+        self.ground
+    }
+
+    /// The prisms of object `id`.
+    pub fn of(&self, id: u32) -> &[Prism] {
+        let r = &self.ranges[id as usize];
+        &self.prisms[r.start as usize..r.end as usize]
+    }
+
+    /// How many prisms in all.
+    pub fn len(&self) -> usize {
+        self.prisms.len()
+    }
+
+    /// Whether there are none (never, for a built `Prisms`).
+    pub fn is_empty(&self) -> bool {
+        self.prisms.is_empty()
+    }
+}
+
+/// An edge by its endpoints' exact bits, the smaller first.
+type EdgeKey = ([u32; 3], [u32; 3]);
+
+/// The object's opaque triangles lying in one plane (a wall line or a roof
+/// height), in 2D coordinates of that plane, with their mod-2 boundary.
+struct Sheet {
+    triangles: Vec<[DVec2; 3]>,
+    /// Edges used an odd number of times: where the sheet may end.
+    boundary: Vec<[DVec2; 2]>,
+}
+
+impl Sheet {
+    /// The triangles within `tol` of the plane through `origin` spanned by
+    /// the unit vectors `e1`, `e2`.
+    fn new(tris: &[[Vec3; 3]], origin: DVec3, e1: DVec3, e2: DVec3, tol: f64) -> Sheet {
+        let normal = e1.cross(e2);
+        let flat = |v: Vec3| {
+            let d = v.as_dvec3() - origin;
+            DVec2::new(d.dot(e1), d.dot(e2))
+        };
+        let mut triangles = Vec::new();
+        let mut edges: HashMap<EdgeKey, (u32, [DVec2; 2])> = HashMap::new();
+        for t in tris {
+            if !t
+                .iter()
+                .all(|v| normal.dot(v.as_dvec3() - origin).abs() <= tol)
+            {
+                continue;
+            }
+            let f = t.map(flat);
+            if (f[1] - f[0]).perp_dot(f[2] - f[0]) == 0.0 {
+                continue; // covers nothing
+            }
+            triangles.push(f);
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let (ka, kb) = (
+                    a.to_array().map(f32::to_bits),
+                    b.to_array().map(f32::to_bits),
+                );
+                let key = if ka <= kb { (ka, kb) } else { (kb, ka) };
+                edges.entry(key).or_insert((0, [f[k], f[(k + 1) % 3]])).0 += 1;
+            }
+        }
+        let boundary = edges
+            .into_values()
+            .filter(|(n, _)| n % 2 == 1)
+            .map(|(_, e)| e)
+            .collect();
+        Sheet {
+            triangles,
+            boundary,
+        }
+    }
+
+    /// Whether the sheet covers the rectangle `[lo, hi]` (plane coordinates)
+    /// but for a `tol` rim: no boundary edge enters the rectangle shrunk by
+    /// `tol`, so the number of triangles over its points is constant mod 2,
+    /// and it is odd at a point clear of every edge.
+    fn covers(&self, lo: DVec2, hi: DVec2, tol: f64) -> bool {
+        let (lo, hi) = (lo + DVec2::splat(tol), hi - DVec2::splat(tol));
+        if !(lo.x < hi.x && lo.y < hi.y) || self.triangles.is_empty() {
+            return false;
+        }
+        if self
+            .boundary
+            .iter()
+            .any(|&[a, b]| segment_meets_box(a, b, lo, hi))
+        {
+            return false;
+        }
+        // A few fixed points inside, off both diagonals but the first (a
+        // quad's split); the first one clear of all edges decides.
+        for f in [
+            (0.5, 0.5),
+            (0.31, 0.57),
+            (0.73, 0.41),
+            (0.17, 0.29),
+            (0.61, 0.83),
+        ] {
+            let p = lo + (hi - lo) * DVec2::new(f.0, f.1);
+            let mut count = 0;
+            let mut clear = true;
+            for t in &self.triangles {
+                let d = [0, 1, 2].map(|k| {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    (b - a).perp_dot(p - a) / (b - a).length()
+                });
+                if d.iter().any(|x| x.abs() <= tol) {
+                    clear = false;
+                    break;
+                }
+                if d.iter().all(|&x| x > 0.0) || d.iter().all(|&x| x < 0.0) {
+                    count += 1;
+                }
+            }
+            if clear {
+                return count % 2 == 1;
+            }
+        }
+        false
+    }
+}
+
+/// Whether the segment `a b` shares a point with the closed box `[lo, hi]`
+/// (Liang–Barsky clipping).
+fn segment_meets_box(a: DVec2, b: DVec2, lo: DVec2, hi: DVec2) -> bool {
+    let d = b - a;
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for (p, q) in [
+        (-d.x, a.x - lo.x),
+        (d.x, hi.x - a.x),
+        (-d.y, a.y - lo.y),
+        (d.y, hi.y - a.y),
+    ] {
+        if p == 0.0 {
+            if q < 0.0 {
+                return false;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    t0 <= t1
+}
+
+/// Step 1–5 of the module docs for one object.
+fn object_prisms(scene: &Scene, object: &Object, ground: f64) -> Vec<Prism> {
+    let b = object.bounds;
+    if b.is_empty() || b.min.y as f64 != ground {
+        // Walls must reach the ground level exactly, or rays pass below them.
+        return Vec::new();
+    }
+    let magnitude = b.min.abs().max(b.max.abs()).max_element() as f64;
+    let size = b.extent().max_element() as f64;
+    let tol = 4.0 * f32::EPSILON as f64 * magnitude.max(size);
+    let margin = (1e-5 * size).max(8.0 * tol);
+    let tris: Vec<[Vec3; 3]> = (object.triangles.start..object.triangles.end)
+        .filter(|t| !object.see_through.iter().any(|r| r.contains(t)))
+        .map(|t| scene.triangles()[t as usize])
+        .collect();
+    // Step 1: vertical and horizontal triangles, by their planes.
+    let normal = |t: &[Vec3; 3]| {
+        (t[1] - t[0])
+            .as_dvec3()
+            .cross((t[2] - t[0]).as_dvec3())
+            .try_normalize()
+    };
+    let vertical: Vec<(DVec2, &[Vec3; 3], f64)> = tris
+        .iter()
+        .filter_map(|t| {
+            let n = normal(t)?;
+            let h = DVec2::new(n.x, n.z);
+            let area = (t[1] - t[0])
+                .as_dvec3()
+                .cross((t[2] - t[0]).as_dvec3())
+                .length();
+            (n.y.abs() <= 1e-4).then(|| (h.normalize(), t, area))
+        })
+        .collect();
+    let mut heights: Vec<f64> = tris
+        .iter()
+        .filter(|t| normal(t).is_some_and(|n| n.y.abs() >= 1.0 - 1e-7))
+        .map(|t| t.iter().map(|v| v.y as f64).sum::<f64>() / 3.0)
+        .filter(|&y| y > ground + tol)
+        .collect();
+    heights.sort_by(|a, b| b.total_cmp(a));
+    heights.dedup_by(|a, b| (*a - *b).abs() <= tol);
+    // Step 2: the frame of the largest wall triangle, and the wall lines.
+    let Some(&(axis_u, _, _)) = vertical.iter().max_by(|p, q| p.2.total_cmp(&q.2)) else {
+        return Vec::new();
+    };
+    let axis_w = axis_u.perp();
+    let xz = |u: f64, w: f64| axis_u * u + axis_w * w;
+    let at = |u: f64, w: f64, y: f64| {
+        let p = xz(u, w);
+        DVec3::new(p.x, y, p.y)
+    };
+    let lines = |axis: DVec2| -> Option<Vec<f64>> {
+        let mut v: Vec<f64> = vertical
+            .iter()
+            .filter(|(n, _, _)| n.dot(axis).abs() >= 1.0 - 1e-7)
+            .map(|(_, t, _)| {
+                t.iter()
+                    .map(|p| axis.dot(DVec2::new(p.x as f64, p.z as f64)))
+                    .sum::<f64>()
+                    / 3.0
+            })
+            .collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup_by(|a, b| (*a - *b).abs() <= tol);
+        (2..=MAX_LINES).contains(&v.len()).then_some(v)
+    };
+    let (Some(us), Some(ws)) = (lines(axis_u), lines(axis_w)) else {
+        return Vec::new();
+    };
+    let (nu, nw) = (us.len() - 1, ws.len() - 1);
+    let y3 = DVec3::Y;
+    let (u3, w3) = (at(1.0, 0.0, 0.0), at(0.0, 1.0, 0.0));
+    // One sheet per wall line (coordinates: along the wall, height) and per
+    // roof height (coordinates: u, w).
+    let u_sheets: Vec<Sheet> = us
+        .iter()
+        .map(|&u| Sheet::new(&tris, at(u, 0.0, 0.0), w3, y3, tol))
+        .collect();
+    let w_sheets: Vec<Sheet> = ws
+        .iter()
+        .map(|&w| Sheet::new(&tris, at(0.0, w, 0.0), u3, y3, tol))
+        .collect();
+    let roofs: Vec<(f64, Sheet)> = heights
+        .iter()
+        .map(|&y| (y, Sheet::new(&tris, DVec3::new(0.0, y, 0.0), u3, w3, tol)))
+        .collect();
+    // Step 3: the roofs covering each cell, highest first; a cell starts at
+    // the highest and steps down while its faces are not provably closed.
+    let covering: Vec<Vec<f64>> = (0..nu * nw)
+        .map(|c| {
+            let (i, j) = (c % nu, c / nu);
+            roofs
+                .iter()
+                .filter(|(_, sheet)| {
+                    sheet.covers(
+                        DVec2::new(us[i], ws[j]),
+                        DVec2::new(us[i + 1], ws[j + 1]),
+                        tol,
+                    )
+                })
+                .map(|(y, _)| *y)
+                .collect()
+        })
+        .collect();
+    let mut choice = vec![0usize; nu * nw];
+    let height = |choice: &[usize], c: usize| covering[c].get(choice[c]).copied();
+    // Step 4: lower (or drop) cells with a side face no wall covers, until stable.
+    let h = |choice: &[usize], i: isize, j: isize| -> f64 {
+        if i < 0 || j < 0 || i >= nu as isize || j >= nw as isize {
+            return ground;
+        }
+        height(choice, j as usize * nu + i as usize).unwrap_or(ground)
+    };
+    loop {
+        let mut changed = false;
+        for c in 0..nu * nw {
+            let Some(top) = height(&choice, c) else {
+                continue;
+            };
+            let (i, j) = (c % nu, c / nu);
+            let (ii, jj) = (i as isize, j as isize);
+            // (neighbour, the wall sheet, the face's span along that sheet)
+            let sides = [
+                (ii - 1, jj, &u_sheets[i], (ws[j], ws[j + 1])),
+                (ii + 1, jj, &u_sheets[i + 1], (ws[j], ws[j + 1])),
+                (ii, jj - 1, &w_sheets[j], (us[i], us[i + 1])),
+                (ii, jj + 1, &w_sheets[j + 1], (us[i], us[i + 1])),
+            ];
+            let closed = sides.iter().all(|&(ni, nj, sheet, (s0, s1))| {
+                let low = h(&choice, ni, nj);
+                low >= top || sheet.covers(DVec2::new(s0, low), DVec2::new(s1, top), tol)
+            });
+            if !closed {
+                choice[c] += 1;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    let height: Vec<Option<f64>> = (0..nu * nw).map(|c| height(&choice, c)).collect();
+    // Step 5: the largest rectangle of cells at each height level.
+    let mut levels: Vec<f64> = height.iter().flatten().copied().collect();
+    levels.sort_by(|a, b| b.total_cmp(a));
+    levels.dedup();
+    let mut candidates: Vec<(f64, [usize; 4], f64)> = levels
+        .iter()
+        .filter_map(|&level| {
+            let inside = |i: usize, j: usize| height[j * nu + i].is_some_and(|y| y >= level);
+            let mut best: Option<(f64, [usize; 4])> = None;
+            for i0 in 0..nu {
+                for j0 in 0..nw {
+                    if !inside(i0, j0) {
+                        continue;
+                    }
+                    let mut j_end = nw;
+                    for i1 in i0..nu {
+                        if !inside(i1, j0) {
+                            break;
+                        }
+                        let mut j1 = j0;
+                        while j1 + 1 < j_end && inside(i1, j1 + 1) {
+                            j1 += 1;
+                        }
+                        j_end = j1 + 1;
+                        let area = (us[i1 + 1] - us[i0]) * (ws[j1 + 1] - ws[j0]);
+                        if best.is_none_or(|(a, _)| area > a) {
+                            best = Some((area, [i0, j0, i1, j1]));
+                        }
+                    }
+                }
+            }
+            best.map(|(_, r)| {
+                let span = (us[r[2] + 1] - us[r[0]]) + (ws[r[3] + 1] - ws[r[1]]);
+                (span * (level - ground), r, level)
+            })
+        })
+        .collect();
+    candidates.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut chosen: Vec<([usize; 4], f64)> = Vec::new();
+    for (_, r, level) in candidates {
+        let within = |(c, l): &([usize; 4], f64)| {
+            c[0] <= r[0] && c[1] <= r[1] && r[2] <= c[2] && r[3] <= c[3] && level <= *l
+        };
+        if chosen.len() < MAX_PRISMS && !chosen.iter().any(within) {
+            chosen.push((r, level));
+        }
+    }
+    chosen
+        .into_iter()
+        .filter_map(|(r, level)| {
+            let (u0, u1) = (us[r[0]] + margin, us[r[2] + 1] - margin);
+            let (w0, w1) = (ws[r[1]] + margin, ws[r[3] + 1] - margin);
+            let top = level - margin;
+            (u0 < u1 && w0 < w1 && top > ground).then(|| Prism {
+                footprint: vec![xz(u0, w0), xz(u1, w0), xz(u1, w1), xz(u0, w1)],
+                top,
+            })
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::SceneBuilder;
+    use crate::scene::generate::MeshBuilder;
+
+    fn world(m: MeshBuilder) -> Vec<[DVec3; 3]> {
+        m.build(false)
+            .triangles()
+            .map(|t| t.map(|v| v.as_dvec3()))
+            .collect()
+    }
+
+    fn cuboid(min: Vec3, max: Vec3, bottom: bool) -> Vec<[DVec3; 3]> {
+        let mut m = MeshBuilder::new();
+        m.cuboid(min, max, bottom);
+        world(m)
+    }
+
+    /// A scene of one ground quad (object 0) and the given meshes.
+    fn scene(meshes: Vec<Vec<[DVec3; 3]>>) -> Scene {
+        let mut b = SceneBuilder::new("t");
+        b.begin_object("ground", None);
+        let mut g = MeshBuilder::new();
+        g.quad(
+            Vec3::new(-100.0, 0.0, -100.0),
+            Vec3::new(-100.0, 0.0, 100.0),
+            Vec3::new(100.0, 0.0, 100.0),
+            Vec3::new(100.0, 0.0, -100.0),
+        );
+        b.add_triangles(world(g), false);
+        for (i, m) in meshes.into_iter().enumerate() {
+            b.begin_object(format!("b{i}"), None);
+            b.add_triangles(m, false);
+        }
+        b.finish()
+    }
+
+    /// The prisms of object `id` in world coordinates: (footprint, top).
+    fn prisms_of(s: &Scene, p: &Prisms, id: u32) -> Vec<(Vec<DVec2>, f64)> {
+        let o = DVec2::new(s.origin.x, s.origin.z);
+        p.of(id)
+            .iter()
+            .map(|q| {
+                (
+                    q.footprint.iter().map(|&v| v + o).collect(),
+                    q.top + s.origin.y,
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_box_on_the_ground_gets_itself_less_a_margin() {
+        let s = scene(vec![cuboid(Vec3::ZERO, Vec3::new(10.0, 20.0, 6.0), false)]);
+        let p = Prisms::find(&s).expect("a box stands on the ground");
+        assert_eq!(p.ground() + s.origin.y, 0.0);
+        let prisms = prisms_of(&s, &p, 1);
+        assert_eq!(prisms.len(), 1);
+        let (footprint, top) = &prisms[0];
+        assert!(*top < 20.0 && *top > 19.99, "{top}");
+        let (lo, hi) = footprint
+            .iter()
+            .fold((DVec2::MAX, DVec2::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+        assert!(
+            lo.x > 0.0 && lo.y > 0.0 && hi.x < 10.0 && hi.y < 6.0,
+            "{lo} {hi}"
+        );
+        assert!(
+            lo.x < 0.01 && lo.y < 0.01 && hi.x > 9.99 && hi.y > 5.99,
+            "{lo} {hi}"
+        );
+        assert!(p.of(0).is_empty(), "the ground quad encloses nothing");
+    }
+
+    #[test]
+    fn open_floating_or_see_through_shells_get_none() {
+        let mut open = cuboid(Vec3::ZERO, Vec3::new(10.0, 20.0, 6.0), false);
+        open.drain(0..2); // one wall missing
+        let floating = cuboid(Vec3::new(20.0, 1.0, 0.0), Vec3::new(30.0, 9.0, 6.0), true);
+        let s = scene(vec![open, floating]);
+        assert!(Prisms::find(&s).is_err());
+
+        let mut b = SceneBuilder::new("glass");
+        b.begin_object("glass", None);
+        b.add_triangles(cuboid(Vec3::ZERO, Vec3::splat(5.0), true), true);
+        assert!(Prisms::find(&b.finish()).is_err());
+    }
+
+    #[test]
+    fn an_l_and_a_stepped_tower_stay_inside_their_shape() {
+        // An L of outline (0,0) (10,0) (10,4) (4,4) (4,10) (0,10), 12 high.
+        let mut m = MeshBuilder::new();
+        let outline = [
+            (0.0, 0.0),
+            (10.0, 0.0),
+            (10.0, 4.0),
+            (4.0, 4.0),
+            (4.0, 10.0),
+            (0.0, 10.0),
+        ];
+        for k in 0..6 {
+            let (a, b) = (outline[k], outline[(k + 1) % 6]);
+            m.quad(
+                Vec3::new(a.0, 0.0, a.1),
+                Vec3::new(b.0, 0.0, b.1),
+                Vec3::new(b.0, 12.0, b.1),
+                Vec3::new(a.0, 12.0, a.1),
+            );
+        }
+        let y = 12.0;
+        m.quad(
+            Vec3::new(0.0, y, 0.0),
+            Vec3::new(0.0, y, 4.0),
+            Vec3::new(10.0, y, 4.0),
+            Vec3::new(10.0, y, 0.0),
+        );
+        m.quad(
+            Vec3::new(0.0, y, 4.0),
+            Vec3::new(0.0, y, 10.0),
+            Vec3::new(4.0, y, 10.0),
+            Vec3::new(4.0, y, 4.0),
+        );
+        let l = world(m);
+        // A 10 × 5 × 10 base with a 4 × 20 × 4 tower standing on it.
+        let mut t = cuboid(Vec3::new(30.0, 0.0, 0.0), Vec3::new(40.0, 5.0, 10.0), false);
+        t.extend(cuboid(
+            Vec3::new(33.0, 5.0, 3.0),
+            Vec3::new(37.0, 25.0, 7.0),
+            false,
+        ));
+        let s = scene(vec![l, t]);
+        let p = Prisms::find(&s).expect("both provable");
+        let l_prisms = prisms_of(&s, &p, 1);
+        assert!(!l_prisms.is_empty());
+        for (footprint, top) in &l_prisms {
+            assert!(*top < 12.0);
+            // A convex footprint with every corner in one arm lies in the L.
+            let in_arm = |x1: f64, z1: f64| {
+                footprint
+                    .iter()
+                    .all(|v| v.x > 0.0 && v.y > 0.0 && v.x < x1 && v.y < z1)
+            };
+            assert!(in_arm(10.0, 4.0) || in_arm(4.0, 10.0), "{footprint:?}");
+        }
+        let tower = prisms_of(&s, &p, 2);
+        assert!(tower.iter().any(|(_, top)| *top > 24.9), "{tower:?}");
+        for (footprint, top) in &tower {
+            let in_tower = footprint
+                .iter()
+                .all(|v| v.x > 33.0 && v.x < 37.0 && v.y > 3.0 && v.y < 7.0);
+            assert!(*top < 5.0 || in_tower, "{footprint:?} {top}");
+        }
+    }
+}

@@ -1,0 +1,356 @@
+//! The occlusion horizon as a balanced binary tree over screen x (Downs et
+//! al. §3.4, Fig. 3): a piecewise-constant height per column, with the
+//! minimum and maximum height of every subtree.
+//!
+//! The paper splits its tree at the masks' own x values; here the window of
+//! the horizontal view is cut into a fixed number of columns, which keeps the
+//! tree balanced without rotations. Rounding to columns is conservative in
+//! both directions: a mask raises only the columns it covers *wholly*, and a
+//! test looks at every column its frame *touches*.
+
+/// Heights over `[x0, x1)` of the horizontal view plane, in `columns` columns.
+#[derive(Clone, Debug)]
+pub struct Horizon {
+    x0: f64,
+    /// Columns per unit of x.
+    scale: f64,
+    columns: usize,
+    min: Vec<f64>,
+    max: Vec<f64>,
+    /// A height assigned to a whole subtree and not yet pushed to its children.
+    pending: Vec<Option<f64>>,
+}
+
+/// The part of a frame above the horizon: columns `first..=last` (in x,
+/// `[x_lo, x_hi]`) and the lowest horizon height among them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Opening {
+    /// Left edge of the first open column.
+    pub x_lo: f64,
+    /// Right edge of the last open column.
+    pub x_hi: f64,
+    /// The lowest horizon height over the open columns (−∞ where nothing occludes).
+    pub floor: f64,
+}
+
+/// Relative slack against rounding: masks shrink by it, frames grow by it.
+const SLACK: f64 = 1e-12;
+
+fn grow(v: f64) -> f64 {
+    v + SLACK * (1.0 + v.abs())
+}
+
+fn shrink(v: f64) -> f64 {
+    v - SLACK * (1.0 + v.abs())
+}
+
+impl Horizon {
+    /// An empty horizon (−∞ everywhere) over `[x0, x1)` in `columns` columns.
+    pub fn new(columns: usize) -> Self {
+        let n = 2 * columns.next_power_of_two();
+        let mut h = Horizon {
+            x0: 0.0,
+            scale: 1.0,
+            columns,
+            min: vec![f64::NEG_INFINITY; n],
+            max: vec![f64::NEG_INFINITY; n],
+            pending: vec![None; n],
+        };
+        h.reset(0.0, 1.0);
+        h
+    }
+
+    /// Empties the horizon and sets its window to `[x0, x1)`, keeping the
+    /// allocation: one frame's work per call, not one per column.
+    pub fn reset(&mut self, x0: f64, x1: f64) {
+        self.x0 = x0;
+        self.scale = self.columns as f64 / (x1 - x0);
+        self.min[1] = f64::NEG_INFINITY;
+        self.max[1] = f64::NEG_INFINITY;
+        self.pending[1] = Some(f64::NEG_INFINITY);
+    }
+
+    /// The window's left edge.
+    pub fn x0(&self) -> f64 {
+        self.x0
+    }
+
+    /// The window's right edge.
+    pub fn x1(&self) -> f64 {
+        self.x0 + self.columns as f64 / self.scale
+    }
+
+    fn column_at(&self, x: f64) -> f64 {
+        (x - self.x0) * self.scale
+    }
+
+    /// Adds a rectangular mask (§3.4, Fig. 4c): every column lying wholly
+    /// inside `[x_lo, x_hi]` is raised to at least `height`.
+    pub fn insert(&mut self, x_lo: f64, x_hi: f64, height: f64) {
+        let lo = self.column_at(grow(x_lo)).ceil();
+        let hi = self.column_at(shrink(x_hi)).floor() - 1.0;
+        if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) || hi < 0.0 || lo >= self.columns as f64 {
+            return;
+        }
+        let (lo, hi) = (
+            lo.max(0.0) as usize,
+            hi.min(self.columns as f64 - 1.0) as usize,
+        );
+        let size = self.min.len() / 2;
+        self.raise(1, 0, size - 1, lo, hi, shrink(height));
+    }
+
+    /// The columns a frame `[x_lo, x_hi]` touches, clamped to the window.
+    fn touched(&self, x_lo: f64, x_hi: f64) -> Option<(usize, usize)> {
+        let lo = self.column_at(shrink(x_lo)).floor();
+        let hi = self.column_at(grow(x_hi)).floor();
+        if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) || hi < 0.0 || lo >= self.columns as f64 {
+            return None;
+        }
+        Some((
+            lo.max(0.0) as usize,
+            hi.min(self.columns as f64 - 1.0) as usize,
+        ))
+    }
+
+    /// Whether a frame `[x_lo, x_hi]` whose top is `top` lies wholly below
+    /// the horizon (§3.5): every column it touches is higher than its top.
+    /// A frame outside the window is not hidden.
+    pub fn hides(&self, x_lo: f64, x_hi: f64, top: f64) -> bool {
+        match self.touched(x_lo, x_hi) {
+            Some((lo, hi)) => {
+                let size = self.min.len() / 2;
+                self.above(1, 0, size - 1, lo, hi, grow(top))
+            }
+            None => false,
+        }
+    }
+
+    /// The part of a frame `[x_lo, x_hi]` (top `top`) above the horizon
+    /// (§3.6), or `None` when it is hidden or outside the window.
+    pub fn opening(&self, x_lo: f64, x_hi: f64, top: f64) -> Option<Opening> {
+        let (lo, hi) = self.touched(x_lo, x_hi)?;
+        let size = self.min.len() / 2;
+        let mut span = (usize::MAX, 0usize, f64::INFINITY);
+        self.open_columns(1, 0, size - 1, lo, hi, grow(top), &mut span);
+        (span.0 != usize::MAX).then(|| Opening {
+            x_lo: self.x0 + span.0 as f64 / self.scale,
+            x_hi: self.x0 + (span.1 + 1) as f64 / self.scale,
+            floor: span.2,
+        })
+    }
+
+    fn assign(&mut self, node: usize, height: f64) {
+        self.min[node] = height;
+        self.max[node] = height;
+        self.pending[node] = Some(height);
+    }
+
+    fn push_down(&mut self, node: usize) {
+        if let Some(h) = self.pending[node].take() {
+            if 2 * node + 1 < self.min.len() {
+                self.assign(2 * node, h);
+                self.assign(2 * node + 1, h);
+            }
+        }
+    }
+
+    /// Raises columns `lo..=hi` of the subtree `node` (over `nl..=nr`) to
+    /// `height` (§3.5: a mask that hides a node replaces its subtree; one
+    /// hidden by the node stops there).
+    fn raise(&mut self, node: usize, nl: usize, nr: usize, lo: usize, hi: usize, height: f64) {
+        if hi < nl || nr < lo || height <= self.min[node] {
+            return;
+        }
+        if lo <= nl && nr <= hi && height >= self.max[node] {
+            self.assign(node, height);
+            return;
+        }
+        self.push_down(node);
+        let mid = (nl + nr) / 2;
+        self.raise(2 * node, nl, mid, lo, hi, height);
+        self.raise(2 * node + 1, mid + 1, nr, lo, hi, height);
+        self.min[node] = self.min[2 * node].min(self.min[2 * node + 1]);
+        self.max[node] = self.max[2 * node].max(self.max[2 * node + 1]);
+    }
+
+    /// Whether every column of `lo..=hi` in the subtree is higher than `top`.
+    fn above(&self, node: usize, nl: usize, nr: usize, lo: usize, hi: usize, top: f64) -> bool {
+        if hi < nl || nr < lo || self.min[node] > top {
+            return true;
+        }
+        if self.max[node] <= top || self.pending[node].is_some() {
+            // Some column of the overlap is at most `top` (a pending node is flat).
+            return false;
+        }
+        let mid = (nl + nr) / 2;
+        self.above(2 * node, nl, mid, lo, hi, top)
+            && self.above(2 * node + 1, mid + 1, nr, lo, hi, top)
+    }
+
+    /// Gathers the first and last column of `lo..=hi` at most `top`, and
+    /// their lowest height.
+    #[allow(clippy::too_many_arguments)]
+    fn open_columns(
+        &self,
+        node: usize,
+        nl: usize,
+        nr: usize,
+        lo: usize,
+        hi: usize,
+        top: f64,
+        span: &mut (usize, usize, f64),
+    ) {
+        if hi < nl || nr < lo || self.min[node] > top {
+            return;
+        }
+        if self.pending[node].is_some() || (lo <= nl && nr <= hi && self.max[node] <= top) {
+            // Flat, or wholly open: its overlap with lo..=hi is open.
+            span.0 = span.0.min(nl.max(lo));
+            span.1 = span.1.max(nr.min(hi));
+            span.2 = span.2.min(self.min[node]);
+            return;
+        }
+        let mid = (nl + nr) / 2;
+        self.open_columns(2 * node, nl, mid, lo, hi, top, span);
+        self.open_columns(2 * node + 1, mid + 1, nr, lo, hi, top, span);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Brute force over columns, to check the tree against.
+    fn columns(h: &Horizon) -> Vec<f64> {
+        (0..h.columns)
+            .map(|c| {
+                let x = h.x0 + (c as f64 + 0.5) / h.scale;
+                // The height of a column is what a one-column frame sees.
+                let (mut lo, mut hi) = (-1e9, 1e9);
+                for _ in 0..200 {
+                    let mid = 0.5 * (lo + hi);
+                    if h.hides(x, x, mid) {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                lo
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_mask_raises_only_the_columns_it_covers_wholly() {
+        let mut h = Horizon::new(10);
+        h.reset(0.0, 10.0);
+        h.insert(2.5, 6.001, 3.0);
+        let c = columns(&h);
+        // Columns 3, 4, 5 lie inside [2.5, 6.001]; 2 and 6 only partly.
+        // (A mask ending exactly on a column edge loses that column to the
+        // rounding slack: the safe side.)
+        for (i, v) in c.iter().enumerate() {
+            if (3..=5).contains(&i) {
+                assert!((v - 3.0).abs() < 1e-6, "column {i}: {v}");
+            } else {
+                assert!(*v < -1e8, "column {i}: {v}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_frame_is_hidden_only_when_every_touched_column_is_higher() {
+        let mut h = Horizon::new(8);
+        h.reset(-4.0, 4.0);
+        h.insert(-4.01, 0.01, 1.0);
+        h.insert(-0.01, 4.01, 2.0);
+        assert!(h.hides(-3.5, 3.5, 0.5));
+        assert!(!h.hides(-3.5, 3.5, 1.5));
+        assert!(h.hides(0.5, 3.5, 1.5));
+        // Touching the column left of 0 (height 1) is enough to be seen.
+        assert!(!h.hides(-0.01, 3.5, 1.5));
+        // Exactly at the height is not hidden: the mask must be higher.
+        assert!(!h.hides(0.5, 3.5, 2.0));
+    }
+
+    #[test]
+    fn frames_outside_the_window_are_not_hidden() {
+        let mut h = Horizon::new(4);
+        h.reset(0.0, 4.0);
+        h.insert(-0.1, 4.1, 10.0);
+        assert!(!h.hides(5.0, 6.0, 0.0));
+        assert!(!h.hides(-2.0, -1.0, 0.0));
+        // Partly inside: only the inside part is looked at (the caller
+        // decides whether the outside part matters).
+        assert!(h.hides(3.0, 6.0, 0.0));
+    }
+
+    #[test]
+    fn lower_masks_do_not_lower_and_reset_empties() {
+        let mut h = Horizon::new(16);
+        h.reset(0.0, 16.0);
+        h.insert(-1.0, 17.0, 5.0);
+        h.insert(4.0, 8.0, 1.0);
+        assert!(h.hides(0.0, 16.0, 4.9));
+        h.reset(0.0, 16.0);
+        assert!(!h.hides(0.0, 16.0, -1e300));
+    }
+
+    #[test]
+    fn the_opening_spans_the_open_columns_and_their_floor() {
+        let mut h = Horizon::new(10);
+        h.reset(0.0, 10.0);
+        h.insert(-0.01, 4.01, 5.0);
+        h.insert(3.99, 7.01, 2.0);
+        h.insert(6.99, 10.01, 5.0);
+        let o = h.opening(1.0, 9.0, 3.0).expect("columns 4..7 are open");
+        assert_eq!((o.x_lo, o.x_hi), (4.0, 7.0));
+        assert!((o.floor - 2.0).abs() < 1e-9);
+        assert_eq!(h.opening(1.0, 3.5, 3.0), None);
+    }
+
+    #[test]
+    fn random_masks_match_brute_force() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let n = 37;
+        let mut h = Horizon::new(n);
+        h.reset(-1.0, 1.0);
+        let mut brute = vec![f64::NEG_INFINITY; n];
+        for _ in 0..300 {
+            let a: f64 = rng.random_range(-1.2..1.2);
+            let b: f64 = rng.random_range(-1.2..1.2);
+            let (lo, hi) = (a.min(b), a.max(b));
+            let y: f64 = rng.random_range(-5.0..5.0);
+            h.insert(lo, hi, y);
+            for (c, v) in brute.iter_mut().enumerate() {
+                let (cl, cr) = (
+                    -1.0 + c as f64 * 2.0 / n as f64,
+                    -1.0 + (c + 1) as f64 * 2.0 / n as f64,
+                );
+                if cl >= lo + 1e-9 && cr <= hi - 1e-9 {
+                    *v = v.max(y);
+                }
+            }
+            let a: f64 = rng.random_range(-1.0..1.0);
+            let b: f64 = rng.random_range(-1.0..1.0);
+            let (lo, hi) = (a.min(b), a.max(b));
+            let top: f64 = rng.random_range(-5.0..5.0);
+            let touched = brute.iter().enumerate().filter(|(c, _)| {
+                let (cl, cr) = (
+                    -1.0 + *c as f64 * 2.0 / n as f64,
+                    -1.0 + (*c + 1) as f64 * 2.0 / n as f64,
+                );
+                cr > lo - 1e-9 && cl <= hi + 1e-9
+            });
+            let expect = touched.clone().all(|(_, v)| *v > top + 1e-9);
+            let strict = touched.clone().all(|(_, v)| *v > top - 1e-9);
+            let got = h.hides(lo, hi, top);
+            // Away from rounding ties the tree and brute force agree.
+            if expect == strict {
+                assert_eq!(got, expect, "[{lo}, {hi}] top {top}");
+            }
+        }
+    }
+}
