@@ -446,3 +446,55 @@ fn options_are_checked() {
         assert!(e.contains(want), "{spec}: {e}");
     }
 }
+
+#[test]
+fn a_mask_hides_below_its_top_and_not_above() {
+    // A 10 m block 20–30 m ahead; behind it at 60 m, a 17 m and a 30 m pole.
+    // Seen from 1.7 m, the block's near roof edge hides up to 26.6 m there;
+    // its mask (top over the far depth) claims up to 18.3 m.
+    let cuboid = |min: Vec3, max: Vec3| {
+        let mut m = pvsd::scene::generate::MeshBuilder::new();
+        m.cuboid(min, max, false);
+        m.build(false)
+            .triangles()
+            .map(|t| t.map(|v| v.as_dvec3()))
+            .collect::<Vec<_>>()
+    };
+    let mut b = pvsd::scene::SceneBuilder::new("block");
+    b.begin_object("ground", None);
+    b.add_triangles(
+        cuboid(
+            Vec3::new(-100.0, -1.0, -100.0),
+            Vec3::new(100.0, 0.0, 100.0),
+        )[8..10]
+            .to_vec(),
+        false,
+    );
+    b.begin_object("block", None);
+    b.add_triangles(
+        cuboid(Vec3::new(-5.0, 0.0, 20.0), Vec3::new(5.0, 10.0, 30.0)),
+        false,
+    );
+    b.begin_object("low_pole", None);
+    b.add_triangles(
+        cuboid(Vec3::new(-1.5, 0.0, 60.0), Vec3::new(-0.5, 17.0, 61.0)),
+        false,
+    );
+    b.begin_object("high_pole", None);
+    b.add_triangles(
+        cuboid(Vec3::new(0.5, 0.0, 60.0), Vec3::new(1.5, 30.0, 61.0)),
+        false,
+    );
+    let methods = SceneMethods::prepare(Arc::new(b.finish()));
+    let cam = Camera {
+        eye: DVec3::new(0.0, 1.7, 0.0),
+        forward: DVec3::Z,
+        ..Camera::default()
+    };
+    check_camera(&methods, cam);
+    let got = answer(&methods, "horizon", cam);
+    let name = |id: &u32| methods.scene().objects()[*id as usize].name.clone();
+    let names: Vec<String> = got.iter().map(name).collect();
+    assert!(names.contains(&"high_pole".to_string()), "{names:?}");
+    assert!(!names.contains(&"low_pole".to_string()), "{names:?}");
+}
