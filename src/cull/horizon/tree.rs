@@ -70,16 +70,6 @@ impl Horizon {
         self.pending[1] = Some(f64::NEG_INFINITY);
     }
 
-    /// The window's left edge.
-    pub fn x0(&self) -> f64 {
-        self.x0
-    }
-
-    /// The window's right edge.
-    pub fn x1(&self) -> f64 {
-        self.x0 + self.columns as f64 / self.scale
-    }
-
     fn column_at(&self, x: f64) -> f64 {
         (x - self.x0) * self.scale
     }
