@@ -214,14 +214,6 @@ fn tall_thin_towers_hide_and_are_seen_correctly() {
     };
     b.begin_object("ground", None);
     b.add_triangles(quad(0.0), false);
-    let cuboid = |min: Vec3, max: Vec3| {
-        let mut m = pvsd::scene::generate::MeshBuilder::new();
-        m.cuboid(min, max, false);
-        m.build(false)
-            .triangles()
-            .map(|t| t.map(|v| v.as_dvec3()))
-            .collect::<Vec<_>>()
-    };
     for i in 0..30 {
         let x = -30.0 + 2.0 * i as f32;
         b.begin_object(format!("tower_{i}"), None);
@@ -273,6 +265,16 @@ fn tall_thin_towers_hide_and_are_seen_correctly() {
             .name
             .starts_with("box")
     }));
+}
+
+/// The world triangles of a box without its underside (a building on the ground).
+fn cuboid(min: Vec3, max: Vec3) -> Vec<[DVec3; 3]> {
+    let mut m = pvsd::scene::generate::MeshBuilder::new();
+    m.cuboid(min, max, false);
+    m.build(false)
+        .triangles()
+        .map(|t| t.map(|v| v.as_dvec3()))
+        .collect()
 }
 
 /// Whether `p` is enclosed by the object: every one of several random
@@ -452,14 +454,6 @@ fn a_mask_hides_below_its_top_and_not_above() {
     // A 10 m block 20–30 m ahead; behind it at 60 m, a 17 m and a 30 m pole.
     // Seen from 1.7 m, the block's near roof edge hides up to 26.6 m there;
     // its mask (top over the far depth) claims up to 18.3 m.
-    let cuboid = |min: Vec3, max: Vec3| {
-        let mut m = pvsd::scene::generate::MeshBuilder::new();
-        m.cuboid(min, max, false);
-        m.build(false)
-            .triangles()
-            .map(|t| t.map(|v| v.as_dvec3()))
-            .collect::<Vec<_>>()
-    };
     let mut b = pvsd::scene::SceneBuilder::new("block");
     b.begin_object("ground", None);
     b.add_triangles(
