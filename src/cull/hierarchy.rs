@@ -28,6 +28,24 @@ pub(crate) enum Target {
     Node(u32),
     /// The part of an object inside a leaf's cell.
     Object(u32),
+    /// A dynamic occludee (its index in the frame's list).
+    Dynamic(u32),
+}
+
+/// Tests dynamic occludees (avatars) with a method's occlusion `test` once
+/// the hierarchy is culled: `visible[i]` is false when `dynamic[i]` is
+/// outside the frustum or the test finds it invisible. Occluders are real
+/// surfaces, so the test holds whatever order boxes are asked in.
+pub(crate) fn cull_dynamic(
+    view: &View,
+    dynamic: &[Aabb],
+    test: &mut dyn FnMut(Target, &Aabb) -> Visibility,
+    visible: &mut Vec<bool>,
+) {
+    visible.clear();
+    visible.extend(dynamic.iter().enumerate().map(|(i, b)| {
+        view.frustum.intersects(b) && test(Target::Dynamic(i as u32), b) != Visibility::Invisible
+    }));
 }
 
 /// Knobs of the traversal.

@@ -27,7 +27,7 @@ use glam::DVec3;
 
 pub use spec::{METHOD_NAMES, MethodError, MethodOptions, MethodSpec, OptionReader};
 
-use crate::geom::{Camera, CameraError, Frustum};
+use crate::geom::{Aabb, Camera, CameraError, Frustum};
 use crate::scene::Scene;
 use crate::spatial::{KdTree, KdTreeParams};
 
@@ -196,6 +196,35 @@ pub trait CullMethod: Send + Sync + 'static {
 
     /// Adds the possibly visible objects of `view` to `out` (in any order, repeats allowed).
     fn cull(&self, view: &View, state: &mut Self::State, out: &mut VisibleSet) -> CullCounters;
+
+    /// [`CullMethod::cull`], and also tests boxes that are not part of the
+    /// scene and move between frames (dynamic occludees: the avatars of a
+    /// walkthrough's other users), in the scene's local coordinates.
+    /// `visible[i]` is set false only when `dynamic[i]` certainly shows no
+    /// pixel; dynamic boxes never hide anything.
+    ///
+    /// The default tests them against the frustum alone, which is
+    /// conservative for every method; a method overrides it to test them
+    /// with its own occlusion as well.
+    fn cull_dynamic(
+        &self,
+        view: &View,
+        state: &mut Self::State,
+        out: &mut VisibleSet,
+        dynamic: &[Aabb],
+        visible: &mut Vec<bool>,
+    ) -> CullCounters {
+        visible.clear();
+        visible.extend(dynamic.iter().map(|b| view.frustum.intersects(b)));
+        self.cull(view, state, out)
+    }
+
+    /// About how many bytes a client's state holds (for the server's cache
+    /// budget); the default counts the state itself, no heap.
+    fn state_bytes(&self, state: &Self::State) -> usize {
+        let _ = state;
+        std::mem::size_of::<Self::State>()
+    }
 }
 
 /// A client's state for one method, opaque to everyone but that method.
@@ -235,7 +264,27 @@ pub trait Culler: Send + Sync {
     ///
     /// # Panics
     /// When `cache` was made by another method: a caller bug, not bad input.
-    fn cull(&self, view: &View, cache: &mut ClientCache, out: &mut VisibleSet) -> CullStats;
+    fn cull(&self, view: &View, cache: &mut ClientCache, out: &mut VisibleSet) -> CullStats {
+        self.cull_dynamic(view, cache, out, &[], &mut Vec::new())
+    }
+    /// [`Culler::cull`], also testing the boxes `dynamic` into `visible`
+    /// ([`CullMethod::cull_dynamic`]).
+    ///
+    /// # Panics
+    /// When `cache` was made by another method.
+    fn cull_dynamic(
+        &self,
+        view: &View,
+        cache: &mut ClientCache,
+        out: &mut VisibleSet,
+        dynamic: &[Aabb],
+        visible: &mut Vec<bool>,
+    ) -> CullStats;
+    /// About how many bytes `cache` holds ([`CullMethod::state_bytes`]).
+    ///
+    /// # Panics
+    /// When `cache` was made by another method.
+    fn cache_bytes(&self, cache: &ClientCache) -> usize;
     /// Whether a view costs well under ~100 µs ([`CullMethod::is_cheap`]).
     fn is_cheap(&self) -> bool;
 }
@@ -258,17 +307,22 @@ impl<M: CullMethod> Culler for M {
         })
     }
 
-    fn cull(&self, view: &View, cache: &mut ClientCache, out: &mut VisibleSet) -> CullStats {
-        let state = cache.state.downcast_mut::<M::State>().unwrap_or_else(|| {
-            panic!(
-                "a '{}' cache handed to '{}'",
-                cache.method,
-                CullMethod::name(self)
-            )
-        });
+    fn cull_dynamic(
+        &self,
+        view: &View,
+        cache: &mut ClientCache,
+        out: &mut VisibleSet,
+        dynamic: &[Aabb],
+        visible: &mut Vec<bool>,
+    ) -> CullStats {
+        let method = cache.method;
+        let state = cache
+            .state
+            .downcast_mut::<M::State>()
+            .unwrap_or_else(|| panic!("a '{method}' cache handed to '{}'", CullMethod::name(self)));
         out.clear();
         let start = Instant::now();
-        let counters = CullMethod::cull(self, view, state, out);
+        let counters = CullMethod::cull_dynamic(self, view, state, out, dynamic, visible);
         out.finish();
         let cull_us = start.elapsed().as_secs_f64() * 1e6;
         CullStats {
@@ -282,6 +336,17 @@ impl<M: CullMethod> Culler for M {
             },
             visible: out.len() as u64,
         }
+    }
+
+    fn cache_bytes(&self, cache: &ClientCache) -> usize {
+        let state = cache.state.downcast_ref::<M::State>().unwrap_or_else(|| {
+            panic!(
+                "a '{}' cache handed to '{}'",
+                cache.method,
+                CullMethod::name(self)
+            )
+        });
+        self.state_bytes(state)
     }
 }
 

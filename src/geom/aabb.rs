@@ -3,7 +3,7 @@
 //! Boxes are the currency of every culling method: objects, kd-tree cells and
 //! the subtree bounds of Bittner et al. §2.2 are all `Aabb`s.
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 
 /// An axis-aligned box `[min, max]`, closed on both sides.
 ///
@@ -36,6 +36,15 @@ impl Aabb {
             b.grow(p);
         }
         b
+    }
+
+    /// The smallest `f32` box holding the `f64` box `[min, max]`: each
+    /// bound is rounded outwards, so no point of it is lost.
+    pub fn enclosing(min: DVec3, max: DVec3) -> Self {
+        Aabb {
+            min: Vec3::new(round_down(min.x), round_down(min.y), round_down(min.z)),
+            max: Vec3::new(round_up(max.x), round_up(max.y), round_up(max.z)),
+        }
     }
 
     /// Whether the box holds no point.
@@ -119,9 +128,41 @@ impl Aabb {
     }
 }
 
+/// The largest `f32` not above `v`.
+fn round_down(v: f64) -> f32 {
+    let f = v as f32;
+    if f64::from(f) <= v {
+        f
+    } else if f == 0.0 {
+        -f32::from_bits(1)
+    } else if f > 0.0 {
+        f32::from_bits(f.to_bits() - 1)
+    } else {
+        f32::from_bits(f.to_bits() + 1)
+    }
+}
+
+/// The smallest `f32` not below `v`.
+fn round_up(v: f64) -> f32 {
+    -round_down(-v)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn enclosing_rounds_outwards() {
+        for v in [0.0, 1e-40, -1e-40, 0.1, -0.1, 1.7, -1.7, 1e7 + 0.3, -3e38] {
+            let b = Aabb::enclosing(DVec3::splat(v), DVec3::splat(v));
+            assert!(f64::from(b.min.x) <= v && f64::from(b.max.x) >= v, "{v}");
+            // Tight: one step in is past v (or v is exact).
+            assert!(
+                b.max.x - b.min.x <= f32::EPSILON * b.max.x.abs().max(1e-38) * 2.0,
+                "{v}"
+            );
+        }
+    }
 
     #[test]
     fn empty_is_identity_of_merge_and_intersects_nothing() {

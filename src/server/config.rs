@@ -5,6 +5,10 @@
 //! scenes = ["scenes/city1k.glb", "../shared/scenes/Sponza/Sponza.gltf"]
 //! body_limit_bytes = 65536
 //! request_timeout_ms = 10000
+//! session_idle_s = 300           # a session without a frame this long ends
+//! max_sessions = 100000          # past it, the least recently used is evicted
+//! session_cache_bytes = 268435456  # sessions' caches and kept frames, in all
+//! max_walkthroughs = 10000
 //! ```
 //! Every key is optional; flags given on the command line win over the file.
 
@@ -14,7 +18,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::Limits;
+use super::{Limits, SessionLimits};
 
 /// The file's contents.
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
@@ -29,6 +33,14 @@ pub struct ServeConfig {
     pub body_limit_bytes: Option<usize>,
     /// Request timeout, milliseconds.
     pub request_timeout_ms: Option<u64>,
+    /// Idle time after which a session ends, seconds.
+    pub session_idle_s: Option<u64>,
+    /// Most live sessions.
+    pub max_sessions: Option<u64>,
+    /// Most bytes all sessions may hold.
+    pub session_cache_bytes: Option<u64>,
+    /// Most live walkthroughs.
+    pub max_walkthroughs: Option<u64>,
 }
 
 /// A config file that could not be used.
@@ -59,8 +71,16 @@ impl ServeConfig {
         if cfg.body_limit_bytes == Some(0) {
             return Err(fail("body_limit_bytes must be > 0".into()));
         }
-        if cfg.request_timeout_ms == Some(0) {
-            return Err(fail("request_timeout_ms must be > 0".into()));
+        for (key, value) in [
+            ("request_timeout_ms", cfg.request_timeout_ms),
+            ("session_idle_s", cfg.session_idle_s),
+            ("max_sessions", cfg.max_sessions),
+            ("session_cache_bytes", cfg.session_cache_bytes),
+            ("max_walkthroughs", cfg.max_walkthroughs),
+        ] {
+            if value == Some(0) {
+                return Err(fail(format!("{key} must be > 0")));
+            }
         }
         Ok(cfg)
     }
@@ -68,11 +88,18 @@ impl ServeConfig {
     /// The limits it sets, defaults for what it leaves out.
     pub fn limits(&self) -> Limits {
         let d = Limits::default();
+        let s = d.sessions;
         Limits {
             body_bytes: self.body_limit_bytes.unwrap_or(d.body_bytes),
             request_timeout: self
                 .request_timeout_ms
                 .map_or(d.request_timeout, Duration::from_millis),
+            sessions: SessionLimits {
+                idle: self.session_idle_s.map_or(s.idle, Duration::from_secs),
+                max_sessions: self.max_sessions.unwrap_or(s.max_sessions),
+                cache_bytes: self.session_cache_bytes.unwrap_or(s.cache_bytes),
+                max_walkthroughs: self.max_walkthroughs.unwrap_or(s.max_walkthroughs),
+            },
         }
     }
 }

@@ -34,6 +34,31 @@ pub enum ApiError {
         /// What is loaded.
         loaded: Vec<String>,
     },
+    /// No session has this id (never made, or deleted).
+    #[error("no session '{0}' (never made, or deleted)")]
+    UnknownSession(String),
+    /// The session was idle past the configured time and is gone.
+    #[error("session '{id}' expired after {idle_s} s without a frame; make a new one")]
+    SessionExpired {
+        /// The session id.
+        id: String,
+        /// The idle limit in force, seconds.
+        idle_s: u64,
+    },
+    /// The session was evicted to keep the server within its session caps.
+    #[error(
+        "session '{0}' was evicted: the server's cap on sessions or their memory was reached; make a new one"
+    )]
+    SessionEvicted(String),
+    /// A WebSocket route asked without a valid upgrade.
+    #[error("this route speaks WebSocket: {0}")]
+    UpgradeRequired(String),
+    /// The query string is not one the route takes.
+    #[error("{0}")]
+    InvalidQuery(String),
+    /// No walkthrough has this id.
+    #[error("no walkthrough '{0}' (never made, or idle past the session time limit)")]
+    UnknownWalkthrough(String),
     /// The method or its options were refused.
     #[error(transparent)]
     Method(#[from] MethodError),
@@ -78,6 +103,12 @@ impl ApiError {
             ApiError::MalformedJson(_) => (StatusCode::BAD_REQUEST, "malformed_json"),
             ApiError::BodyTooLarge { .. } => (StatusCode::PAYLOAD_TOO_LARGE, "body_too_large"),
             ApiError::UnknownScene { .. } => (StatusCode::NOT_FOUND, "unknown_scene"),
+            ApiError::UnknownSession(_) => (StatusCode::NOT_FOUND, "unknown_session"),
+            ApiError::SessionExpired { .. } => (StatusCode::GONE, "session_expired"),
+            ApiError::SessionEvicted(_) => (StatusCode::GONE, "session_evicted"),
+            ApiError::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
+            ApiError::InvalidQuery(_) => (StatusCode::BAD_REQUEST, "invalid_query"),
+            ApiError::UnknownWalkthrough(_) => (StatusCode::NOT_FOUND, "unknown_walkthrough"),
             ApiError::Method(e) => (
                 StatusCode::BAD_REQUEST,
                 match e {
@@ -99,18 +130,22 @@ impl ApiError {
     }
 }
 
-impl IntoResponse for ApiError {
-    fn into_response(self) -> Response {
-        let (status, code) = self.status_and_code();
-        if let ApiError::Internal(detail) = &self {
+impl ApiError {
+    /// The JSON body clients get, `{"error": {"code", "message"}}`; logs
+    /// the details of an internal error, which the body does not carry.
+    pub fn body(&self) -> serde_json::Value {
+        let code = self.status_and_code().1;
+        if let ApiError::Internal(detail) = self {
             tracing::error!(%detail, "internal error");
         } else {
             tracing::debug!(%code, message = %self, "request refused");
         }
-        (
-            status,
-            Json(json!({ "error": { "code": code, "message": self.to_string() } })),
-        )
-            .into_response()
+        json!({ "error": { "code": code, "message": self.to_string() } })
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        (self.status_and_code().0, Json(self.body())).into_response()
     }
 }

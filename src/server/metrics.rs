@@ -31,6 +31,11 @@ struct RouteLatencyLabels {
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct EvictionLabels {
+    cause: &'static str,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct CullLabels {
     scene: String,
     method: String,
@@ -49,6 +54,16 @@ pub struct Metrics {
     visible: Family<CullLabels, Histogram, fn() -> Histogram>,
     /// Scenes loaded.
     scenes: Gauge,
+    /// Live sessions.
+    sessions: Gauge,
+    /// Bytes the live sessions hold (their caches and kept frames).
+    session_bytes: Gauge,
+    /// Sessions ended by the server, by cause (`expired`, `evicted`).
+    evictions: Family<EvictionLabels, Counter>,
+    /// Live walkthroughs.
+    walkthroughs: Gauge,
+    /// Open WebSocket connections.
+    websockets: Gauge,
 }
 
 fn latency_histogram() -> Histogram {
@@ -77,6 +92,28 @@ impl Metrics {
             size_histogram as fn() -> Histogram,
         );
         let scenes = Gauge::default();
+        let sessions = Gauge::default();
+        let session_bytes = Gauge::default();
+        let evictions = Family::<EvictionLabels, Counter>::default();
+        let walkthroughs = Gauge::default();
+        let websockets = Gauge::default();
+        registry.register("sessions", "Live sessions", sessions.clone());
+        registry.register(
+            "session_cache_bytes",
+            "Bytes held by live sessions (method caches and kept frames)",
+            session_bytes.clone(),
+        );
+        registry.register(
+            "session_evictions",
+            "Sessions ended by the server, by cause",
+            evictions.clone(),
+        );
+        registry.register("walkthroughs", "Live walkthroughs", walkthroughs.clone());
+        registry.register(
+            "websocket_connections",
+            "Open WebSocket connections",
+            websockets.clone(),
+        );
         registry.register(
             "http_requests",
             "HTTP requests by route, method and status",
@@ -101,7 +138,34 @@ impl Metrics {
             cull,
             visible,
             scenes,
+            sessions,
+            session_bytes,
+            evictions,
+            walkthroughs,
+            websockets,
         }
+    }
+
+    /// A counter of server-ended sessions to hand to the session store:
+    /// `true` counts an expiry, `false` an eviction.
+    pub fn session_evictions(&self) -> impl Fn(bool) + Send + Sync + 'static {
+        let evictions = self.evictions.clone();
+        move |expired| {
+            let cause = if expired { "expired" } else { "evicted" };
+            evictions.get_or_create(&EvictionLabels { cause }).inc();
+        }
+    }
+
+    /// Sets the session gauges.
+    pub fn set_sessions(&self, live: u64, bytes: u64, walkthroughs: u64) {
+        self.sessions.set(live as i64);
+        self.session_bytes.set(bytes as i64);
+        self.walkthroughs.set(walkthroughs as i64);
+    }
+
+    /// A WebSocket opened (`+1`) or closed (`-1`).
+    pub fn websocket(&self, delta: i64) {
+        self.websockets.inc_by(delta);
     }
 
     /// Records one cull.

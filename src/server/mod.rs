@@ -1,24 +1,35 @@
-//! The HTTP service: routes, shared state, errors, metrics, shutdown.
+//! The HTTP service: routes, shared state, sessions, walkthroughs, wire
+//! formats, WebSocket, errors, metrics, shutdown.
 //!
 //! Split like mini-redis: [`app`] builds the router over an [`AppState`]
 //! (tests drive it with `tower::ServiceExt::oneshot`), [`run`] serves it on a
 //! listener until a shutdown future resolves, [`shutdown_signal`] is that
 //! future for SIGINT and SIGTERM, and [`config`] reads `--config` files.
+//! [`session`] keeps clients' temporal caches and computes deltas,
+//! [`walkthrough`] puts several sessions in one scene, [`ws`] streams
+//! frames, [`wire`] and [`binary`] are the JSON and `application/x-pvs`
+//! encodings.
 
+pub mod binary;
 pub mod config;
 mod error;
 mod extract;
 mod metrics;
 mod routes;
+pub mod session;
 mod state;
+pub mod walkthrough;
 pub mod wire;
+mod ws;
 
 use std::future::Future;
 
 use axum::Router;
 use axum::error_handling::HandleErrorLayer;
 use axum::extract::DefaultBodyLimit;
-use axum::routing::{get, post};
+use axum::handler::Handler;
+use axum::http::Method;
+use axum::routing::{MethodFilter, on};
 use tokio::net::TcpListener;
 use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
@@ -27,18 +38,63 @@ use tower_http::trace::TraceLayer;
 pub use error::ApiError;
 pub use extract::BodyLimit;
 pub use metrics::Metrics;
-pub use state::{AppState, DuplicateScene, Limits};
+pub use state::{AppState, DuplicateScene, Limits, SessionLimits};
+
+/// A router that remembers what it routes, so the OpenAPI document can be
+/// checked against the routes themselves.
+struct Routes {
+    router: Router<AppState>,
+    table: Vec<(Method, &'static str)>,
+}
+
+impl Routes {
+    fn add<H, T>(mut self, method: Method, path: &'static str, handler: H) -> Self
+    where
+        H: Handler<T, AppState>,
+        T: 'static,
+    {
+        let filter = MethodFilter::try_from(method.clone()).expect("a standard HTTP method");
+        self.router = self.router.route(path, on(filter, handler));
+        self.table.push((method, path));
+        self
+    }
+}
+
+/// Every route of DESIGN's HTTP API, in one place.
+fn routes() -> Routes {
+    Routes {
+        router: Router::new(),
+        table: Vec::new(),
+    }
+    .add(Method::GET, "/healthz", routes::healthz)
+    .add(Method::GET, "/scenes", routes::scenes)
+    .add(Method::GET, "/scenes/{id}/objects", routes::objects)
+    .add(Method::POST, "/scenes/{id}/visible", routes::visible)
+    .add(Method::POST, "/sessions", routes::create_session)
+    .add(Method::POST, "/sessions/{sid}/frames", routes::frames)
+    .add(Method::DELETE, "/sessions/{sid}", routes::delete_session)
+    .add(Method::GET, "/sessions/{sid}/ws", ws::upgrade)
+    .add(Method::POST, "/walkthroughs", routes::create_walkthrough)
+    .add(
+        Method::POST,
+        "/walkthroughs/{wid}/users",
+        routes::join_walkthrough,
+    )
+    .add(Method::GET, "/walkthroughs/{wid}", routes::walkthrough)
+    .add(Method::GET, "/metrics", routes::metrics)
+}
+
+/// The (HTTP method, path template) of every route [`app`] serves.
+pub fn route_table() -> Vec<(Method, &'static str)> {
+    routes().table
+}
 
 /// The router of DESIGN's HTTP API over `state`.
 pub fn app(state: AppState) -> Router {
     let limits = state.limits();
     let timeout_state = state.clone();
-    Router::new()
-        .route("/healthz", get(routes::healthz))
-        .route("/scenes", get(routes::scenes))
-        .route("/scenes/{id}/objects", get(routes::objects))
-        .route("/scenes/{id}/visible", post(routes::visible))
-        .route("/metrics", get(routes::metrics))
+    routes()
+        .router
         .fallback(routes::no_route)
         .method_not_allowed_fallback(routes::method_not_allowed)
         .layer(DefaultBodyLimit::max(limits.body_bytes))

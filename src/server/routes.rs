@@ -7,13 +7,18 @@
 
 use axum::Json;
 use axum::extract::{OriginalUri, Path, State};
-use axum::http::{Method, header};
-use axum::response::IntoResponse;
+use axum::http::{HeaderMap, Method, StatusCode, header};
+use axum::response::{IntoResponse, Response};
 
+use super::binary;
 use super::error::ApiError;
 use super::extract::{RawBody, parse};
+use super::session::Session;
 use super::state::AppState;
-use super::wire::{Bounds, ObjectInfo, SceneInfo, ViewRequest, VisibleResponse};
+use super::wire::{
+    Bounds, FrameResponse, ObjectInfo, SceneInfo, SessionCreated, SessionRequest, UserJoined,
+    ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo, method_spec,
+};
 use crate::cull::{View, VisibleSet};
 
 /// `GET /healthz`: 200 while the server runs.
@@ -64,14 +69,30 @@ pub async fn objects(
     ))
 }
 
-/// `POST /scenes/{id}/visible`: the potentially visible set of one view.
+/// Whether the client asked for `application/x-pvs` (`Accept`).
+pub fn wants_binary(headers: &HeaderMap) -> bool {
+    headers
+        .get_all(header::ACCEPT)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .any(|v| v.contains(binary::CONTENT_TYPE))
+}
+
+fn binary_body(bytes: Vec<u8>) -> Response {
+    ([(header::CONTENT_TYPE, binary::CONTENT_TYPE)], bytes).into_response()
+}
+
+/// `POST /scenes/{id}/visible`: the potentially visible set of one view
+/// (JSON with stats, or the ids alone as `application/x-pvs`).
 pub async fn visible(
     State(state): State<AppState>,
     Path(id): Path<String>,
+    headers: HeaderMap,
     RawBody(body): RawBody,
-) -> Result<Json<VisibleResponse>, ApiError> {
+) -> Result<Response, ApiError> {
     let methods = state.scene(&id)?;
     let req: ViewRequest = parse(&body)?;
+    req.check_stateless()?;
     let spec = req.method_spec()?;
     let view = View::new(req.camera(), methods.scene())?;
     let (method, mut cache) = methods.prepare_client(&spec)?;
@@ -93,15 +114,145 @@ pub async fn visible(
     state
         .metrics()
         .observe_cull(&id, stats.method, stats.cull_us * 1e-6, stats.visible);
+    if wants_binary(&headers) {
+        return Ok(binary_body(binary::encode_visible(out.ids())));
+    }
     Ok(Json(VisibleResponse {
         visible: out.ids().to_vec(),
         areas: out.areas(),
         stats: stats.into(),
-    }))
+    })
+    .into_response())
+}
+
+/// `POST /sessions`: a session of one scene and method.
+pub async fn create_session(
+    State(state): State<AppState>,
+    RawBody(body): RawBody,
+) -> Result<(StatusCode, Json<SessionCreated>), ApiError> {
+    let req: SessionRequest = parse(&body)?;
+    let methods = state.scene(&req.scene)?.clone();
+    let spec = method_spec(req.method.as_deref(), &req.options)?;
+    let (method, cache) = methods.prepare_client(&spec)?;
+    let name = method.name().to_string();
+    let session = state
+        .sessions()
+        .insert(Session::new(methods, method, cache, None));
+    Ok((
+        StatusCode::CREATED,
+        Json(SessionCreated {
+            session: session.id.clone(),
+            method: name,
+        }),
+    ))
+}
+
+/// Answers one frame of session `sid` from a view body: shared by
+/// `POST /sessions/{sid}/frames` and the WebSocket.
+pub async fn answer_frame(
+    state: &AppState,
+    sid: &str,
+    body: &[u8],
+) -> Result<FrameResponse, ApiError> {
+    let session = state.sessions().get(sid)?;
+    let req: ViewRequest = parse(body)?;
+    req.check_frame()?;
+    let view = View::new(req.camera(), session.scene.scene())?;
+    let answered = session.frame(view, req.base).await?;
+    if let Some(user) = &session.user {
+        // Keeps the walkthrough alive while its users walk.
+        let _ = state.walkthroughs().get(&user.walkthrough.id);
+    }
+    state.sessions().resized(&session, answered.bytes);
+    let stats = answered.stats;
+    state.metrics().observe_cull(
+        &session.scene.scene().id,
+        stats.method,
+        stats.cull_us * 1e-6,
+        stats.visible,
+    );
+    Ok(answered.frame)
+}
+
+/// `POST /sessions/{sid}/frames`: the change since the frame the client holds.
+pub async fn frames(
+    State(state): State<AppState>,
+    Path(sid): Path<String>,
+    headers: HeaderMap,
+    RawBody(body): RawBody,
+) -> Result<Response, ApiError> {
+    let frame = answer_frame(&state, &sid, &body).await?;
+    Ok(if wants_binary(&headers) {
+        binary_body(binary::encode_frame(&frame))
+    } else {
+        Json(frame).into_response()
+    })
+}
+
+/// `DELETE /sessions/{sid}`: ends a session (and its user's part in a walkthrough).
+pub async fn delete_session(
+    State(state): State<AppState>,
+    Path(sid): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    state.sessions().remove(&sid)?;
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// `POST /walkthroughs`: a walkthrough of one scene and method.
+pub async fn create_walkthrough(
+    State(state): State<AppState>,
+    RawBody(body): RawBody,
+) -> Result<(StatusCode, Json<WalkthroughCreated>), ApiError> {
+    let req: SessionRequest = parse(&body)?;
+    let methods = state.scene(&req.scene)?.clone();
+    let spec = method_spec(req.method.as_deref(), &req.options)?;
+    // Refuse a bad method now rather than at the first user.
+    let method = methods.prepare_client(&spec)?.0.name();
+    let w = state.walkthroughs().create(methods, spec, method);
+    Ok((
+        StatusCode::CREATED,
+        Json(WalkthroughCreated {
+            walkthrough: w.id.clone(),
+            method: method.to_string(),
+        }),
+    ))
+}
+
+/// `POST /walkthroughs/{wid}/users`: a new user, with its own session.
+pub async fn join_walkthrough(
+    State(state): State<AppState>,
+    Path(wid): Path<String>,
+) -> Result<(StatusCode, Json<UserJoined>), ApiError> {
+    let w = state.walkthroughs().get(&wid)?;
+    let (method, cache) = w.scene.prepare_client(&w.spec)?;
+    let user = w.join();
+    let user_id = user.id.clone();
+    let session = state
+        .sessions()
+        .insert(Session::new(w.scene.clone(), method, cache, Some(user)));
+    Ok((
+        StatusCode::CREATED,
+        Json(UserJoined {
+            user: user_id,
+            session: session.id.clone(),
+        }),
+    ))
+}
+
+/// `GET /walkthroughs/{wid}`: its users and their last poses.
+pub async fn walkthrough(
+    State(state): State<AppState>,
+    Path(wid): Path<String>,
+) -> Result<Json<WalkthroughInfo>, ApiError> {
+    Ok(Json(state.walkthroughs().get(&wid)?.info()))
 }
 
 /// `GET /metrics`: Prometheus text.
 pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    let (live, bytes) = state.sessions().usage();
+    state
+        .metrics()
+        .set_sessions(live, bytes, state.walkthroughs().count());
     (
         [(
             header::CONTENT_TYPE,

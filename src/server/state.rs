@@ -1,6 +1,8 @@
-//! What every request shares: the scenes with their methods, the metrics and
-//! the limits. Cheap to clone (an `Arc`); read-only once built, so requests
-//! never lock each other out.
+//! What every request shares: the scenes with their methods, the metrics,
+//! the limits, and the session and walkthrough stores. Cheap to clone (an
+//! `Arc`); the scenes are read-only once built and the stores are
+//! concurrent caches, so requests of different sessions never wait on each
+//! other.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -8,6 +10,8 @@ use std::time::Duration;
 
 use super::error::ApiError;
 use super::metrics::Metrics;
+use super::session::Sessions;
+use super::walkthrough::Walkthroughs;
 use crate::cull::SceneMethods;
 use crate::scene::Scene;
 
@@ -18,6 +22,35 @@ pub struct Limits {
     pub body_bytes: usize,
     /// Longest a request may take before it is answered with 503 `timeout`.
     pub request_timeout: Duration,
+    /// Caps on sessions and walkthroughs.
+    pub sessions: SessionLimits,
+}
+
+/// How long sessions live and how many the server keeps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SessionLimits {
+    /// A session (or walkthrough) without a frame this long ends (410 after).
+    pub idle: Duration,
+    /// Most live sessions; past it the least recently used is evicted.
+    pub max_sessions: u64,
+    /// Most bytes all sessions' caches and kept frames may hold; past it the
+    /// least recently used is evicted.
+    pub cache_bytes: u64,
+    /// Most live walkthroughs.
+    pub max_walkthroughs: u64,
+}
+
+impl Default for SessionLimits {
+    fn default() -> Self {
+        // A horizon session on a 10k city holds ~100 KB; 256 MiB keeps a
+        // few thousand of those, and 100k light (frustum) ones.
+        SessionLimits {
+            idle: Duration::from_secs(300),
+            max_sessions: 100_000,
+            cache_bytes: 256 << 20,
+            max_walkthroughs: 10_000,
+        }
+    }
 }
 
 impl Default for Limits {
@@ -27,6 +60,7 @@ impl Default for Limits {
         Limits {
             body_bytes: 64 * 1024,
             request_timeout: Duration::from_secs(10),
+            sessions: SessionLimits::default(),
         }
     }
 }
@@ -44,6 +78,10 @@ struct Shared {
     metrics: Metrics,
     /// Body size and time limits.
     limits: Limits,
+    /// Live sessions.
+    sessions: Sessions,
+    /// Live walkthroughs.
+    walkthroughs: Walkthroughs,
 }
 
 /// Two scenes with one id: ids must name one scene each.
@@ -66,11 +104,16 @@ impl AppState {
         }
         let metrics = Metrics::new();
         metrics.set_scenes(map.len());
+        let sessions = Sessions::new(limits.sessions, &metrics);
+        let walkthroughs =
+            Walkthroughs::new(limits.sessions.max_walkthroughs, limits.sessions.idle);
         Ok(AppState {
             inner: Arc::new(Shared {
                 scenes: map,
                 metrics,
                 limits,
+                sessions,
+                walkthroughs,
             }),
         })
     }
@@ -99,5 +142,15 @@ impl AppState {
     /// The limits.
     pub fn limits(&self) -> Limits {
         self.inner.limits
+    }
+
+    /// The live sessions.
+    pub fn sessions(&self) -> &Sessions {
+        &self.inner.sessions
+    }
+
+    /// The live walkthroughs.
+    pub fn walkthroughs(&self) -> &Walkthroughs {
+        &self.inner.walkthroughs
     }
 }

@@ -71,6 +71,9 @@ pub struct ViewRequest {
     /// The method's knobs.
     #[serde(default)]
     pub options: serde_json::Map<String, serde_json::Value>,
+    /// Session frames only: the frame the client holds, to get the delta
+    /// against it (default: the last frame the server sent).
+    pub base: Option<u64>,
 }
 
 fn vec3(v: [Number; 3]) -> DVec3 {
@@ -102,6 +105,32 @@ impl ViewRequest {
     /// The method and its options.
     pub fn method_spec(&self) -> Result<MethodSpec, ApiError> {
         method_spec(self.method.as_deref(), &self.options)
+    }
+
+    /// Refuses what a stateless request cannot have (`base`).
+    pub fn check_stateless(&self) -> Result<(), ApiError> {
+        if self.base.is_some() {
+            return Err(ApiError::MalformedJson(
+                "base: only session frames (POST /sessions/{sid}/frames) have a base".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Refuses what a session frame cannot have: its method and options
+    /// were chosen when the session was made.
+    pub fn check_frame(&self) -> Result<(), ApiError> {
+        if self.method.is_some() || !self.options.is_empty() {
+            let field = if self.method.is_some() {
+                "method"
+            } else {
+                "options"
+            };
+            return Err(ApiError::MalformedJson(format!(
+                "{field}: a session's method and options are set by POST /sessions, not per frame"
+            )));
+        }
+        Ok(())
     }
 }
 
@@ -219,4 +248,97 @@ pub struct VisibleResponse {
     pub areas: Option<Vec<f64>>,
     /// What it cost.
     pub stats: StatsBody,
+}
+
+/// The body of `POST /sessions` and `POST /walkthroughs`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SessionRequest {
+    /// The scene id.
+    pub scene: String,
+    /// Culling method (default `auto`).
+    pub method: Option<String>,
+    /// The method's knobs.
+    #[serde(default)]
+    pub options: serde_json::Map<String, serde_json::Value>,
+}
+
+/// The answer of `POST /sessions`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct SessionCreated {
+    /// The session id: 128 random bits, 32 hex digits; whoever holds it
+    /// owns the session.
+    pub session: String,
+    /// The method that answers its frames (`auto` resolved).
+    pub method: String,
+}
+
+/// A session frame: the change from `base` to this frame's visible set
+/// (JSON, or `application/x-pvs` as `proto/wire-format.md` gives it).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub struct FrameResponse {
+    /// This frame's number: 1 for the session's first, then one more each frame.
+    pub frame: u64,
+    /// The frame the delta is against; `null`: `added` is the whole set.
+    pub base: Option<u64>,
+    /// Ids visible now and not in `base`, ascending.
+    pub added: Vec<u32>,
+    /// Ids in `base` and not visible now, ascending.
+    pub removed: Vec<u32>,
+    /// In a walkthrough: the other users whose avatars may be visible, ascending.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub users_visible: Option<Vec<String>>,
+}
+
+/// The answer of `POST /walkthroughs`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct WalkthroughCreated {
+    /// The walkthrough id.
+    pub walkthrough: String,
+    /// The method its users' frames are answered with (`auto` resolved).
+    pub method: String,
+}
+
+/// The answer of `POST /walkthroughs/{wid}/users`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct UserJoined {
+    /// The user's id, as others see it in `users_visible`.
+    pub user: String,
+    /// The user's session: send frames to it.
+    pub session: String,
+}
+
+/// Where a user last stood (world coordinates).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Pose {
+    /// The eye.
+    pub eye: [f64; 3],
+    /// The viewing direction.
+    pub forward: [f64; 3],
+    /// The up direction.
+    pub up: [f64; 3],
+}
+
+/// One user of `GET /walkthroughs/{wid}`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct UserInfo {
+    /// The user id.
+    pub user: String,
+    /// The last frame's camera; `null` before the first frame.
+    pub pose: Option<Pose>,
+    /// Frames answered.
+    pub frames: u64,
+}
+
+/// The answer of `GET /walkthroughs/{wid}`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct WalkthroughInfo {
+    /// The walkthrough id.
+    pub walkthrough: String,
+    /// Its scene.
+    pub scene: String,
+    /// Its method.
+    pub method: String,
+    /// Its users, by id.
+    pub users: Vec<UserInfo>,
 }

@@ -131,6 +131,8 @@ struct Frame {
 enum Kind {
     Cell,
     Object,
+    /// A dynamic occludee ([`CullMethod::cull_dynamic`]), tested like an object.
+    Dynamic,
     /// Added after every test at the same depth.
     Mask,
 }
@@ -329,11 +331,36 @@ impl CullMethod for HorizonCulling {
         state.min_area == 0.0
     }
 
+    fn state_bytes(&self, state: &HorizonState) -> usize {
+        std::mem::size_of::<HorizonState>()
+            + state.horizon.heap_bytes()
+            + state.stamps.capacity() * std::mem::size_of::<u32>()
+            + state.queue.capacity() * std::mem::size_of::<Event>()
+            + state.masks.capacity() * std::mem::size_of::<Mask>()
+    }
+
     fn cull(&self, view: &View, state: &mut HorizonState, out: &mut VisibleSet) -> CullCounters {
+        self.cull_dynamic(view, state, out, &[], &mut Vec::new())
+    }
+
+    /// Dynamic boxes join the sweep as events at their near depth, so only
+    /// masks nearer than them can hide them; a box reaching below the
+    /// ground level is not occlusion-tested (the masks' reasoning needs
+    /// everything at or above it).
+    fn cull_dynamic(
+        &self,
+        view: &View,
+        state: &mut HorizonState,
+        out: &mut VisibleSet,
+        dynamic: &[Aabb],
+        visible: &mut Vec<bool>,
+    ) -> CullCounters {
         let mut counters = CullCounters {
             nodes_tested: 0,
             in_frustum: InFrustum::Unknown,
         };
+        visible.clear();
+        visible.extend(dynamic.iter().map(|b| view.frustum.intersects(b)));
         let cells = self.quadtree.cells();
         if cells.is_empty() {
             return counters;
@@ -355,6 +382,17 @@ impl CullMethod for HorizonCulling {
             index: 0,
             planes: ALL_PLANES,
         });
+        let ground = self.prisms.ground();
+        for (i, b) in dynamic.iter().enumerate() {
+            if visible[i] && sweep.occludes && f64::from(b.min.y) >= ground {
+                state.queue.push(Event {
+                    depth: sweep.near_depth(b),
+                    kind: Kind::Dynamic,
+                    index: i as u32,
+                    planes: 0,
+                });
+            }
+        }
         while let Some(ev) = state.queue.pop() {
             match ev.kind {
                 Kind::Mask => {
@@ -385,6 +423,10 @@ impl CullMethod for HorizonCulling {
                             planes,
                         });
                     }
+                }
+                Kind::Dynamic => {
+                    let i = ev.index as usize;
+                    visible[i] = !self.hidden(&sweep, &state.horizon, &dynamic[i]);
                 }
                 Kind::Object => {
                     let o = &objects[ev.index as usize];

@@ -45,6 +45,12 @@ fn shrink(v: f64) -> f64 {
 }
 
 impl Horizon {
+    /// Bytes its columns take on the heap.
+    pub fn heap_bytes(&self) -> usize {
+        (self.min.capacity() + self.max.capacity()) * std::mem::size_of::<f64>()
+            + self.pending.capacity() * std::mem::size_of::<Option<f64>>()
+    }
+
     /// An empty horizon (−∞ everywhere) over `[x0, x1)` in `columns` columns.
     pub fn new(columns: usize) -> Self {
         let n = 2 * columns.next_power_of_two();

@@ -25,7 +25,7 @@ pub use tree::{LeafTest, OcclusionTree, Visibility};
 use super::hierarchy::{self, HierarchyParams};
 use super::occluder::Occluders;
 use super::{CullCounters, CullMethod, MethodError, MethodOptions, View, VisibleSet};
-use crate::geom::{ALL_PLANES, Side};
+use crate::geom::{ALL_PLANES, Aabb, Side};
 use crate::scene::Scene;
 use crate::spatial::{KdTree, NodeKind};
 
@@ -93,6 +93,15 @@ pub(crate) struct Selection {
 }
 
 impl Selection {
+    /// Bytes its per-node and per-occluder vectors take on the heap.
+    pub(crate) fn heap_bytes(&self) -> usize {
+        self.marks.capacity()
+            + (self.next.as_ref().map_or(0, Vec::capacity)
+                + self.leaves.capacity()
+                + self.stamps.capacity())
+                * std::mem::size_of::<u32>()
+    }
+
     pub(crate) fn new(options: SelectionOptions) -> Self {
         Selection {
             options,
@@ -296,6 +305,17 @@ impl CullMethod for OcclusionTreeCulling {
     }
 
     fn cull(&self, view: &View, state: &mut Self::State, out: &mut VisibleSet) -> CullCounters {
+        self.cull_dynamic(view, state, out, &[], &mut Vec::new())
+    }
+
+    fn cull_dynamic(
+        &self,
+        view: &View,
+        state: &mut Self::State,
+        out: &mut VisibleSet,
+        dynamic: &[Aabb],
+        visible: &mut Vec<bool>,
+    ) -> CullCounters {
         let picked = state
             .selection
             .occluders_for(&self.tree, &self.occluders, view);
@@ -323,18 +343,24 @@ impl CullMethod for OcclusionTreeCulling {
             variant != Variant::Fse,
             eps,
         );
-        let mut test = |_: hierarchy::Target, b: &crate::geom::Aabb| match variant {
+        let mut test = |_: hierarchy::Target, b: &Aabb| match variant {
             Variant::Fse => occlusion.box_visibility_exact(b),
             Variant::Fme => occlusion.region_visibility(b, LeafTest::Exact),
             Variant::Fmc => occlusion.region_visibility(b, LeafTest::Conservative),
         };
-        state.selection.cull(
+        let counters = state.selection.cull(
             &self.tree,
             &self.scene,
             &self.occluders,
             view,
             &mut test,
             out,
-        )
+        );
+        hierarchy::cull_dynamic(view, dynamic, &mut test, visible);
+        counters
+    }
+
+    fn state_bytes(&self, state: &Self::State) -> usize {
+        std::mem::size_of::<Self::State>() + state.selection.heap_bytes()
     }
 }

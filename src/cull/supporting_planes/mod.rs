@@ -24,7 +24,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::hierarchy::Target;
+use super::hierarchy::{self, Target};
 use super::occluder::Occluders;
 use super::occlusion_tree::{Selection, SelectionOptions, Visibility, plane_eps, visible_parts};
 use super::{CullCounters, CullMethod, MethodError, MethodOptions, View, VisibleSet};
@@ -215,6 +215,17 @@ impl CullMethod for SupportingPlanesCulling {
     }
 
     fn cull(&self, view: &View, state: &mut Self::State, out: &mut VisibleSet) -> CullCounters {
+        self.cull_dynamic(view, state, out, &[], &mut Vec::new())
+    }
+
+    fn cull_dynamic(
+        &self,
+        view: &View,
+        state: &mut Self::State,
+        out: &mut VisibleSet,
+        dynamic: &[Aabb],
+        visible: &mut Vec<bool>,
+    ) -> CullCounters {
         let eye = view.eye;
         let eps = plane_eps(&self.scene, eye);
         let picked = state
@@ -305,13 +316,21 @@ impl CullMethod for SupportingPlanesCulling {
             }
             Visibility::Partial
         };
-        state.selection.cull(
+        let counters = state.selection.cull(
             &self.tree,
             &self.scene,
             &self.occluders,
             view,
             &mut test,
             out,
-        )
+        );
+        hierarchy::cull_dynamic(view, dynamic, &mut test, visible);
+        counters
+    }
+
+    fn state_bytes(&self, state: &Self::State) -> usize {
+        std::mem::size_of::<Self::State>()
+            + state.selection.heap_bytes()
+            + state.hidden_by.capacity() * 3 * std::mem::size_of::<u32>()
     }
 }

@@ -1,0 +1,359 @@
+//! Sessions: a client's temporal cache on the server, and the deltas that
+//! let only changes travel after the first frame.
+//!
+//! A [`Session`] holds its method's [`ClientCache`] (occluders picked last
+//! frame, node marks, cached plane relations, horizon buffers) and its last
+//! [`KEEP_FRAMES`] visible sets, encoded ([`IdSet`]). A frame's answer is
+//! the change from the set the client holds: the last one sent, or the
+//! `base` it names; when that base is no longer kept, the whole set with
+//! `base: null`.
+//!
+//! [`Sessions`] is the store: a `moka` cache that expires idle sessions
+//! and evicts the least recently used past a cap on their number and one on
+//! their bytes. Ended sessions leave a tombstone so a late client hears 410
+//! (expired or evicted), not 404 (never made, or deleted).
+//!
+//! Ordering: frames of one session take its `tokio::sync::Mutex`, which is
+//! fair (first come, first served), so they are answered one at a time in
+//! arrival order; sessions share no lock.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use moka::notification::RemovalCause;
+use moka::ops::compute::Op;
+use moka::policy::EvictionPolicy;
+use moka::sync::Cache;
+use rand::Rng;
+
+use super::binary::{IdSet, diff};
+use super::error::ApiError;
+use super::metrics::Metrics;
+use super::state::SessionLimits;
+use super::walkthrough::User;
+use super::wire::FrameResponse;
+use crate::cull::{ClientCache, CullStats, Culler, SceneMethods, View, VisibleSet};
+
+/// Past frames a session keeps, so a client that lost answers can name an
+/// older base and still get a delta.
+pub const KEEP_FRAMES: usize = 4;
+
+/// A fresh id: 128 bits from the thread's CSPRNG (ChaCha, seeded by the
+/// OS), as 32 hex digits.
+pub fn random_id() -> String {
+    format!("{:032x}", rand::rng().random::<u128>())
+}
+
+/// One client's session.
+pub struct Session {
+    /// Its id.
+    pub id: String,
+    /// The scene it looks at.
+    pub scene: Arc<SceneMethods>,
+    /// The method answering its frames.
+    pub method: Arc<dyn Culler>,
+    /// The walkthrough and user it belongs to, if any.
+    pub user: Option<User>,
+    frames: Arc<tokio::sync::Mutex<Frames>>,
+}
+
+/// What a session carries from frame to frame.
+struct Frames {
+    cache: ClientCache,
+    /// The number the next frame gets.
+    next: u64,
+    /// The last frames sent, oldest first.
+    kept: VecDeque<(u64, IdSet)>,
+    visible: VisibleSet,
+    base: Vec<u32>,
+    users_visible: Vec<bool>,
+}
+
+/// A frame's answer, with what it cost and the session's new size.
+pub struct Answered {
+    /// The answer.
+    pub frame: FrameResponse,
+    /// The cull's stats.
+    pub stats: CullStats,
+    /// The session's bytes after it.
+    pub bytes: usize,
+}
+
+impl Session {
+    /// A session of `method` (made for `scene` with `cache`).
+    pub fn new(
+        scene: Arc<SceneMethods>,
+        method: Arc<dyn Culler>,
+        cache: ClientCache,
+        user: Option<User>,
+    ) -> Session {
+        Session {
+            id: random_id(),
+            scene,
+            method,
+            user,
+            frames: Arc::new(tokio::sync::Mutex::new(Frames {
+                cache,
+                next: 1,
+                kept: VecDeque::with_capacity(KEEP_FRAMES + 1),
+                visible: VisibleSet::new(),
+                base: Vec::new(),
+                users_visible: Vec::new(),
+            })),
+        }
+    }
+
+    /// Answers one frame, after every frame that reached the session
+    /// before it. Culling a method that is not cheap runs on a blocking
+    /// thread.
+    pub async fn frame(&self, view: View, base: Option<u64>) -> Result<Answered, ApiError> {
+        let mut frames = self.frames.clone().lock_owned().await;
+        let method = self.method.clone();
+        // The user moves before looking, so others see where it is now.
+        let others = self
+            .user
+            .as_ref()
+            .map(|u| u.moved(&view.camera, &self.scene.scene().origin));
+        let fixed = std::mem::size_of::<Session>() + std::mem::size_of::<Frames>();
+        let work = move || {
+            let f = &mut *frames;
+            let boxes: Vec<_> = others.iter().flatten().map(|(_, b)| *b).collect();
+            let stats = method.cull_dynamic(
+                &view,
+                &mut f.cache,
+                &mut f.visible,
+                &boxes,
+                &mut f.users_visible,
+            );
+            let mut answer = f.answer(base);
+            answer.users_visible = others.map(|others| {
+                others
+                    .into_iter()
+                    .zip(&f.users_visible)
+                    .filter(|&(_, &seen)| seen)
+                    .map(|((user, _), _)| user)
+                    .collect()
+            });
+            let bytes = fixed + f.bytes() + method.cache_bytes(&f.cache);
+            Answered {
+                frame: answer,
+                stats,
+                bytes,
+            }
+        };
+        if self.method.is_cheap() {
+            Ok(work())
+        } else {
+            tokio::task::spawn_blocking(work)
+                .await
+                .map_err(|e| ApiError::Internal(format!("cull task failed: {e}")))
+        }
+    }
+}
+
+impl Frames {
+    /// The delta of the culled `visible` against `base` (or the last frame
+    /// sent); keeps the new set.
+    fn answer(&mut self, base: Option<u64>) -> FrameResponse {
+        let frame = self.next;
+        self.next += 1;
+        let ids = self.visible.ids();
+        let held = match base {
+            Some(b) => self.kept.iter().find(|(n, _)| *n == b),
+            None => self.kept.back(),
+        };
+        let mut out = FrameResponse {
+            frame,
+            ..FrameResponse::default()
+        };
+        match held {
+            Some((n, set)) => {
+                set.decode_into(&mut self.base);
+                diff(&self.base, ids, &mut out.added, &mut out.removed);
+                out.base = Some(*n);
+            }
+            None => out.added = ids.to_vec(),
+        }
+        self.kept.push_back((frame, IdSet::new(ids)));
+        if self.kept.len() > KEEP_FRAMES {
+            self.kept.pop_front();
+        }
+        out
+    }
+
+    /// Bytes on the heap, besides the method's cache.
+    fn bytes(&self) -> usize {
+        self.kept.iter().map(|(_, s)| 16 + s.bytes()).sum::<usize>()
+            + self.visible.len() * std::mem::size_of::<u32>()
+            + self.base.capacity() * std::mem::size_of::<u32>()
+            + self.users_visible.capacity()
+    }
+}
+
+/// A stored session with the weight it was stored at.
+#[derive(Clone)]
+struct Slot {
+    session: Arc<Session>,
+    /// Bytes when stored (what the live-bytes count holds for it).
+    bytes: u64,
+    /// Its weight against the byte cap: at least `cap / max_sessions`, so
+    /// the byte cap also caps the count.
+    weight: u32,
+}
+
+/// Why a session ended without being deleted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Ended {
+    Expired,
+    Evicted,
+}
+
+/// Every live session.
+pub struct Sessions {
+    live: Cache<String, Slot>,
+    ended: Cache<String, Ended>,
+    bytes: Arc<AtomicU64>,
+    limits: SessionLimits,
+    /// Weight floor per session.
+    floor: u64,
+}
+
+impl Sessions {
+    /// An empty store within `limits`, counting into `metrics`.
+    pub fn new(limits: SessionLimits, metrics: &Metrics) -> Sessions {
+        let bytes = Arc::new(AtomicU64::new(0));
+        // Tombstones: ids only, a few times the session cap, an hour each.
+        let ended: Cache<String, Ended> = Cache::builder()
+            .max_capacity(limits.max_sessions.saturating_mul(4).max(1024))
+            .time_to_live(std::time::Duration::from_secs(3600))
+            .build();
+        let listener = {
+            let (bytes, ended) = (bytes.clone(), ended.clone());
+            let evictions = metrics.session_evictions();
+            move |id: Arc<String>, slot: Slot, cause: RemovalCause| {
+                bytes.fetch_sub(slot.bytes, Ordering::Relaxed);
+                if cause == RemovalCause::Replaced {
+                    return;
+                }
+                if let Some(user) = &slot.session.user {
+                    user.leave();
+                }
+                let why = match cause {
+                    RemovalCause::Expired => Ended::Expired,
+                    RemovalCause::Size => Ended::Evicted,
+                    RemovalCause::Explicit | RemovalCause::Replaced => return,
+                };
+                evictions(why == Ended::Expired);
+                ended.insert((*id).clone(), why);
+            }
+        };
+        let floor = (limits.cache_bytes / limits.max_sessions.max(1)).max(1);
+        // Least recently used, not moka's default TinyLFU: TinyLFU may
+        // refuse a new session outright when the cache is full, and a
+        // client that just made one must be able to use it.
+        let live = Cache::builder()
+            .eviction_policy(EvictionPolicy::lru())
+            .max_capacity(limits.cache_bytes)
+            .weigher(|_, s: &Slot| s.weight)
+            .time_to_idle(limits.idle)
+            .eviction_listener(listener)
+            .build();
+        Sessions {
+            live,
+            ended,
+            bytes,
+            limits,
+            floor,
+        }
+    }
+
+    fn slot(&self, session: Arc<Session>, bytes: usize) -> Slot {
+        let bytes = bytes as u64;
+        Slot {
+            session,
+            bytes,
+            weight: bytes.max(self.floor).min(u64::from(u32::MAX)) as u32,
+        }
+    }
+
+    /// Stores a new session.
+    pub fn insert(&self, session: Session) -> Arc<Session> {
+        let session = Arc::new(session);
+        let bytes = std::mem::size_of::<Session>() + session.method_bytes();
+        let slot = self.slot(session.clone(), bytes);
+        self.bytes.fetch_add(slot.bytes, Ordering::Relaxed);
+        self.live.insert(session.id.clone(), slot);
+        session
+    }
+
+    /// The session `id`, now used (its idle time restarts); 404 when never
+    /// made or deleted, 410 when it expired or was evicted.
+    pub fn get(&self, id: &str) -> Result<Arc<Session>, ApiError> {
+        if let Some(slot) = self.live.get(id) {
+            return Ok(slot.session);
+        }
+        Err(self.gone(id))
+    }
+
+    /// Why `id` is not live.
+    fn gone(&self, id: &str) -> ApiError {
+        // Let expiry notices through first: the cache hides an expired
+        // session at once but tells its listener later.
+        self.live.run_pending_tasks();
+        match self.ended.get(id) {
+            Some(Ended::Expired) => ApiError::SessionExpired {
+                id: id.to_string(),
+                idle_s: self.limits.idle.as_secs(),
+            },
+            Some(Ended::Evicted) => ApiError::SessionEvicted(id.to_string()),
+            None => ApiError::UnknownSession(id.to_string()),
+        }
+    }
+
+    /// Records a session's new size after a frame (if it is still live and
+    /// its size moved by more than an eighth).
+    pub fn resized(&self, session: &Arc<Session>, bytes: usize) {
+        let new = self.slot(session.clone(), bytes);
+        self.live
+            .entry(session.id.clone())
+            .and_compute_with(|old| match old {
+                Some(e)
+                    if Arc::ptr_eq(&e.value().session, session)
+                        && e.value().bytes.abs_diff(new.bytes) > e.value().bytes / 8 =>
+                {
+                    self.bytes.fetch_add(new.bytes, Ordering::Relaxed);
+                    Op::Put(new)
+                }
+                _ => Op::Nop,
+            });
+    }
+
+    /// Ends a session; 404/410 as [`Sessions::get`] when it is not live.
+    pub fn remove(&self, id: &str) -> Result<(), ApiError> {
+        match self.live.remove(id) {
+            Some(_) => Ok(()),
+            None => Err(self.gone(id)),
+        }
+    }
+
+    /// Live sessions and the bytes they hold, after pending expiries.
+    pub fn usage(&self) -> (u64, u64) {
+        self.live.run_pending_tasks();
+        (self.live.entry_count(), self.bytes.load(Ordering::Relaxed))
+    }
+
+    /// The limits in force.
+    pub fn limits(&self) -> SessionLimits {
+        self.limits
+    }
+}
+
+impl Session {
+    fn method_bytes(&self) -> usize {
+        // Not locked by anyone yet: the session is new.
+        self.frames
+            .try_lock()
+            .map_or(0, |f| self.method.cache_bytes(&f.cache))
+    }
+}
