@@ -8,7 +8,9 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{CHECK_VIEWPORT, assert_conservative, city_scene, office_scene, rng, shared_scene};
+use common::{
+    CHECK_VIEWPORT, assert_conservative, city_scene, cuboid, office_scene, rng, shared_scene,
+};
 use glam::{DVec2, DVec3, Vec3};
 use pvsd::cull::horizon::HorizonCulling;
 use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
@@ -265,16 +267,6 @@ fn tall_thin_towers_hide_and_are_seen_correctly() {
             .name
             .starts_with("box")
     }));
-}
-
-/// The world triangles of a box without its underside (a building on the ground).
-fn cuboid(min: Vec3, max: Vec3) -> Vec<[DVec3; 3]> {
-    let mut m = pvsd::scene::generate::MeshBuilder::new();
-    m.cuboid(min, max, false);
-    m.build(false)
-        .triangles()
-        .map(|t| t.map(|v| v.as_dvec3()))
-        .collect()
 }
 
 /// Whether `p` is enclosed by the object: every one of several random

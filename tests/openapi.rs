@@ -8,7 +8,7 @@ use axum::body::Body;
 use axum::http::Request;
 use common::city_scene;
 use http_body_util::BodyExt;
-use pvsd::server::{AppState, Limits, app};
+use pvsd::server::{AppState, Limits, app, route_table};
 use serde_json::Value;
 use tower::ServiceExt;
 
@@ -97,6 +97,42 @@ fn conforms(spec: &Value, schema: &Value, value: &Value, at: &str) -> Result<(),
     Ok(())
 }
 
+/// `POST {path}` with `{"scene": "city"}`; the new resource's id.
+async fn created(state: &AppState, path: &str, field: &str) -> String {
+    let req = Request::builder()
+        .method("POST")
+        .uri(path)
+        .body(Body::from(r#"{"scene":"city"}"#))
+        .unwrap();
+    let res = app(state.clone()).oneshot(req).await.unwrap();
+    let bytes = res.into_body().collect().await.unwrap().to_bytes();
+    let v: Value = serde_json::from_slice(&bytes).unwrap();
+    v[field].as_str().unwrap().to_string()
+}
+
+#[test]
+fn the_document_lists_exactly_the_routes() {
+    let spec = spec();
+    let mut documented: Vec<(String, String)> = spec["paths"]
+        .as_object()
+        .unwrap()
+        .iter()
+        .flat_map(|(path, item)| {
+            item.as_object()
+                .unwrap()
+                .keys()
+                .map(move |m| (m.to_uppercase(), path.clone()))
+        })
+        .collect();
+    let mut routed: Vec<(String, String)> = route_table()
+        .into_iter()
+        .map(|(m, p)| (m.to_string(), p.to_string()))
+        .collect();
+    documented.sort();
+    routed.sort();
+    assert_eq!(documented, routed);
+}
+
 #[tokio::test]
 async fn every_documented_operation_is_served_as_documented() {
     let spec = spec();
@@ -105,7 +141,15 @@ async fn every_documented_operation_is_served_as_documented() {
     for (path, item) in spec["paths"].as_object().unwrap() {
         for (method, op) in item.as_object().unwrap() {
             operations += 1;
-            let uri = path.replace("{id}", "city");
+            // Each operation on a session or walkthrough gets a fresh one.
+            let mut uri = path.replace("{id}", "city");
+            if uri.contains("{sid}") {
+                uri = uri.replace("{sid}", &created(&state, "/sessions", "session").await);
+            }
+            if uri.contains("{wid}") {
+                let wid = created(&state, "/walkthroughs", "walkthrough").await;
+                uri = uri.replace("{wid}", &wid);
+            }
             let example = op.pointer("/requestBody/content/application~1json/example");
             let body = example.map_or_else(Body::empty, |e| Body::from(e.to_string()));
             let req = Request::builder()
@@ -126,7 +170,7 @@ async fn every_documented_operation_is_served_as_documented() {
             }
         }
     }
-    assert_eq!(operations, 5);
+    assert_eq!(operations, route_table().len());
 }
 
 #[tokio::test]
@@ -142,6 +186,10 @@ async fn errors_fit_the_error_schema() {
         ("POST", "/scenes/x/visible", "{}"),
         ("GET", "/scenes/x/objects", ""),
         ("GET", "/nowhere", ""),
+        ("POST", "/sessions/ffff/frames", "{}"),
+        ("GET", "/sessions/ffff/ws", ""),
+        ("GET", "/walkthroughs/x", ""),
+        ("POST", "/sessions", "{\"scene\":\"city\",\"method\":\"ddo\"}"),
     ] {
         let req = Request::builder()
             .method(method)

@@ -244,7 +244,10 @@ pub async fn walkthrough(
     State(state): State<AppState>,
     Path(wid): Path<String>,
 ) -> Result<Json<WalkthroughInfo>, ApiError> {
-    Ok(Json(state.walkthroughs().get(&wid)?.info()))
+    let w = state.walkthroughs().get(&wid)?;
+    // Let expired sessions leave first: the store tells of expiry lazily.
+    state.sessions().usage();
+    Ok(Json(w.info()))
 }
 
 /// `GET /metrics`: Prometheus text.

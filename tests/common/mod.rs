@@ -177,3 +177,13 @@ pub async fn fetch<T: serde::de::DeserializeOwned>(req: reqwest::RequestBuilder)
     let res = req.send().await.expect("the server answers");
     res.json().await.expect("a JSON answer")
 }
+
+/// The world triangles of a box without its underside (a building on the ground).
+pub fn cuboid(min: glam::Vec3, max: glam::Vec3) -> Vec<[DVec3; 3]> {
+    let mut m = pvsd::scene::generate::MeshBuilder::new();
+    m.cuboid(min, max, false);
+    m.build(false)
+        .triangles()
+        .map(|t| t.map(|v| v.as_dvec3()))
+        .collect()
+}
