@@ -189,7 +189,11 @@ async fn errors_fit_the_error_schema() {
         ("POST", "/sessions/ffff/frames", "{}"),
         ("GET", "/sessions/ffff/ws", ""),
         ("GET", "/walkthroughs/x", ""),
-        ("POST", "/sessions", "{\"scene\":\"city\",\"method\":\"ddo\"}"),
+        (
+            "POST",
+            "/sessions",
+            "{\"scene\":\"city\",\"method\":\"ddo\"}",
+        ),
     ] {
         let req = Request::builder()
             .method(method)
