@@ -1,0 +1,300 @@
+//! One virtual user: a walk, a way of asking (session, stateless,
+//! WebSocket) and a schedule (closed or open loop). Answers come as
+//! `application/x-pvs`; each is decoded and, for sessions, applied to the
+//! set the user holds.
+
+use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use pvsd::server::binary::{self, Message as PvsMessage};
+use pvsd::server::wire::{Bounds, FrameResponse, SessionCreated};
+use serde_json::{Map, Value, json};
+use tokio_tungstenite::tungstenite::Message;
+
+use crate::stats::Recorder;
+use crate::walk::{Walk, WalkKind};
+
+/// How frames are asked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// `POST /sessions/{sid}/frames`: deltas.
+    Session,
+    /// `POST /scenes/{id}/visible`: whole sets, no server state.
+    Stateless,
+    /// `GET /sessions/{sid}/ws`: deltas over a WebSocket.
+    Ws,
+}
+
+/// What every user does.
+pub struct Plan {
+    /// Server base URL, no trailing slash.
+    pub target: String,
+    /// Scene id.
+    pub scene: String,
+    /// Method name.
+    pub method: String,
+    /// Method options.
+    pub options: Map<String, Value>,
+    /// How to ask.
+    pub mode: Mode,
+    /// Frames a second per user (open loop), or `None` (closed loop).
+    pub rate: Option<f64>,
+    /// Path kind.
+    pub walk: WalkKind,
+    /// Metres per frame.
+    pub step: f64,
+    /// The scene's bounds.
+    pub bounds: Bounds,
+    /// When to stop sending.
+    pub end: Instant,
+}
+
+/// `occlusion_tree:k=32` → (`occlusion_tree`, `{"k": "32"}`).
+pub fn method_json(spec: &str) -> (String, Map<String, Value>) {
+    let mut parts = spec.split(':');
+    let name = parts.next().unwrap_or("auto").to_string();
+    let options = parts
+        .filter_map(|kv| kv.split_once('='))
+        .map(|(k, v)| (k.to_string(), Value::String(v.to_string())))
+        .collect();
+    (name, options)
+}
+
+/// The set a user holds, rebuilt from frames.
+#[derive(Default)]
+struct Held {
+    frame: Option<u64>,
+    ids: BTreeSet<u32>,
+}
+
+impl Held {
+    /// Applies a frame; an older frame than the one held (answers
+    /// overtaking each other in open loop) is skipped.
+    fn apply(&mut self, f: &FrameResponse) -> Result<(), &'static str> {
+        if self.frame.is_some_and(|held| f.frame <= held) {
+            return Ok(());
+        }
+        match f.base {
+            None => self.ids.clear(),
+            Some(b) if Some(b) == self.frame => {}
+            // The answer was made against a frame this user has since
+            // replaced (open loop): it cannot be applied, nor is it wrong.
+            Some(b) if self.frame.is_some_and(|held| b < held) => return Ok(()),
+            Some(_) => return Err("delta_base"),
+        }
+        for id in &f.removed {
+            if !self.ids.remove(id) {
+                return Err("delta_removes_unheld");
+            }
+        }
+        for id in &f.added {
+            if !self.ids.insert(*id) {
+                return Err("delta_adds_held");
+            }
+        }
+        self.frame = Some(f.frame);
+        Ok(())
+    }
+}
+
+fn view(pose: ([f64; 3], [f64; 3])) -> Value {
+    json!({"eye": pose.0, "forward": pose.1, "viewport": [1024, 768]})
+}
+
+/// Runs user `u` until the plan's end.
+pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recorder>) {
+    let walk = Walk::new(plan.walk, &plan.bounds, u64::from(u) + 1, plan.step);
+    let sid = match plan.mode {
+        Mode::Stateless => None,
+        Mode::Session | Mode::Ws => match create_session(&plan, &http).await {
+            Ok(sid) => Some(sid),
+            Err(kind) => {
+                rec.error(kind);
+                return;
+            }
+        },
+    };
+    match (plan.mode, &sid) {
+        (Mode::Ws, Some(sid)) => ws_user(&plan, sid, walk, &rec).await,
+        _ => http_user(&plan, sid.as_deref(), walk, &http, &rec).await,
+    }
+    if let Some(sid) = sid {
+        let _ = http
+            .delete(format!("{}/sessions/{sid}", plan.target))
+            .send()
+            .await;
+    }
+}
+
+async fn create_session(plan: &Plan, http: &reqwest::Client) -> Result<String, &'static str> {
+    let body = json!({"scene": plan.scene, "method": plan.method, "options": plan.options});
+    let res = http
+        .post(format!("{}/sessions", plan.target))
+        .json(&body)
+        .send()
+        .await
+        .map_err(|_| "create_session")?;
+    if !res.status().is_success() {
+        return Err("create_session");
+    }
+    let created: SessionCreated = res.json().await.map_err(|_| "create_session")?;
+    Ok(created.session)
+}
+
+/// When frame `k` is due: on the schedule (open loop) or now (closed);
+/// `None` once past the end.
+async fn due(plan: &Plan, start: Instant, k: u64) -> Option<Instant> {
+    let due = match plan.rate {
+        Some(r) => {
+            let due = start + Duration::from_secs_f64(k as f64 / r);
+            tokio::time::sleep_until(due.into()).await;
+            due
+        }
+        None => Instant::now(),
+    };
+    (due < plan.end).then_some(due)
+}
+
+async fn http_user(
+    plan: &Arc<Plan>,
+    sid: Option<&str>,
+    mut walk: Walk,
+    http: &reqwest::Client,
+    rec: &Arc<Recorder>,
+) {
+    let url = match sid {
+        Some(sid) => format!("{}/sessions/{sid}/frames", plan.target),
+        None => format!("{}/scenes/{}/visible", plan.target, plan.scene),
+    };
+    let held = Arc::new(Mutex::new(Held::default()));
+    let start = Instant::now();
+    let mut in_flight = Vec::new();
+    for k in 0.. {
+        let Some(due) = due(plan, start, k).await else {
+            break;
+        };
+        let mut body = view(walk.next_pose());
+        if sid.is_some() {
+            if let Some(b) = held.lock().unwrap().frame {
+                body["base"] = json!(b);
+            }
+        } else {
+            body["method"] = json!(plan.method);
+            body["options"] = Value::Object(plan.options.clone());
+        }
+        let request = http
+            .post(&url)
+            .header("accept", binary::CONTENT_TYPE)
+            .header("content-type", "application/json")
+            .body(body.to_string());
+        let sent = body.to_string().len();
+        let (held, rec, session) = (held.clone(), rec.clone(), sid.is_some());
+        let exchange = async move {
+            let answer = match request.send().await {
+                Ok(res) if res.status().is_success() => res.bytes().await.map_err(|_| "read"),
+                Ok(res) => Err(status_kind(res.status().as_u16())),
+                Err(e) if e.is_timeout() => Err("timeout"),
+                Err(_) => Err("connect"),
+            };
+            match answer.and_then(|b| check(&b, session, &held).map(|()| b.len())) {
+                Ok(n) => rec.ok(due.elapsed(), sent, n),
+                Err(kind) => rec.error(kind),
+            }
+        };
+        if plan.rate.is_some() {
+            in_flight.push(tokio::spawn(exchange));
+            in_flight.retain(|t| !t.is_finished());
+        } else {
+            exchange.await;
+        }
+    }
+    for t in in_flight {
+        let _ = t.await;
+    }
+}
+
+fn status_kind(status: u16) -> &'static str {
+    match status {
+        404 => "http_404",
+        410 => "http_410",
+        400..=499 => "http_4xx",
+        503 => "http_503",
+        _ => "http_5xx",
+    }
+}
+
+/// Decodes an answer and, for a session, applies it.
+fn check(bytes: &[u8], session: bool, held: &Mutex<Held>) -> Result<(), &'static str> {
+    match (binary::decode(bytes).map_err(|_| "decode")?, session) {
+        (PvsMessage::Frame(f), true) => held.lock().unwrap().apply(&f),
+        (PvsMessage::Visible(_), false) => Ok(()),
+        _ => Err("decode"),
+    }
+}
+
+async fn ws_user(plan: &Arc<Plan>, sid: &str, mut walk: Walk, rec: &Arc<Recorder>) {
+    let url = format!(
+        "{}/sessions/{sid}/ws?encoding=x-pvs",
+        plan.target.replacen("http", "ws", 1)
+    );
+    let Ok((socket, _)) = tokio_tungstenite::connect_async(&url).await else {
+        rec.error("connect");
+        return;
+    };
+    let (mut tx, mut rx) = socket.split();
+    // Due times of frames sent and not yet answered, in order: the server
+    // answers a socket's frames in the order they were sent.
+    let (dues_tx, mut dues_rx) = tokio::sync::mpsc::unbounded_channel::<(Instant, usize)>();
+    // Closed loop: the reader says when an answer is in.
+    let (answered_tx, mut answered_rx) = tokio::sync::mpsc::channel::<()>(1);
+    let reader = {
+        let rec = rec.clone();
+        tokio::spawn(async move {
+            let held = Mutex::new(Held::default());
+            while let Some((due, sent)) = dues_rx.recv().await {
+                let got = tokio::time::timeout(Duration::from_secs(30), rx.next()).await;
+                let bytes = match got {
+                    Ok(Some(Ok(Message::Binary(b)))) => Some(b),
+                    Ok(Some(Ok(_))) => None,
+                    Ok(_) => {
+                        rec.error("ws_closed");
+                        return;
+                    }
+                    Err(_) => {
+                        rec.error("timeout");
+                        return;
+                    }
+                };
+                match bytes
+                    .ok_or("ws_error_message")
+                    .and_then(|b| check(&b, true, &held).map(|()| b.len()))
+                {
+                    Ok(n) => rec.ok(due.elapsed(), sent, n),
+                    Err(kind) => rec.error(kind),
+                }
+                let _ = answered_tx.try_send(());
+            }
+        })
+    };
+    let start = Instant::now();
+    for k in 0.. {
+        let Some(due) = due(plan, start, k).await else {
+            break;
+        };
+        let text = view(walk.next_pose()).to_string();
+        let sent = text.len();
+        // Queued before it is sent, so a fast answer finds its due time.
+        if dues_tx.send((due, sent)).is_err() || tx.send(Message::text(text)).await.is_err() {
+            break;
+        }
+        if plan.rate.is_none() && answered_rx.recv().await.is_none() {
+            break;
+        }
+    }
+    drop(dues_tx);
+    let _ = reader.await;
+    let _ = tx.close().await;
+}

@@ -1,0 +1,175 @@
+//! `loadtest`: drives pvsd as real clients do. Each virtual user walks a
+//! smooth path through a scene (made from the scene's bounds in `GET
+//! /scenes`) and asks for each frame's visible set: through a session and
+//! its deltas (`--mode session`, the default), statelessly
+//! (`--mode stateless`), or over a session's WebSocket (`--mode ws`). It
+//! rebuilds the visible set from the answers and counts any answer that
+//! does not decode or does not chain as an error.
+//!
+//! Without `--rate` each user sends its next frame when the last answer is
+//! in (closed loop: measures capacity). With `--rate R` each user sends R
+//! frames a second on a fixed schedule whether or not answers came back
+//! (open loop), and latency is counted from when a frame was *due*, so a
+//! server that falls behind shows it (no coordinated omission).
+
+mod client;
+mod stats;
+mod walk;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use clap::Parser;
+use pvsd::server::wire::SceneInfo;
+
+use client::{Mode, Plan};
+use stats::Recorder;
+use walk::WalkKind;
+
+/// Walkthrough load generator for pvsd.
+#[derive(Debug, Parser)]
+#[command(version)]
+struct Args {
+    /// The server, e.g. http://127.0.0.1:8080.
+    #[arg(long)]
+    target: String,
+    /// Scene id (as in GET /scenes).
+    #[arg(long)]
+    scene: String,
+    /// Virtual users.
+    #[arg(long, default_value_t = 16)]
+    users: u32,
+    /// Seconds to run.
+    #[arg(long, default_value_t = 10.0)]
+    duration: f64,
+    /// Culling method with its options, e.g. frustum or occlusion_tree:k=32.
+    #[arg(long, default_value = "frustum")]
+    method: String,
+    /// Frames a second per user, on a fixed schedule (open loop); without
+    /// it each user sends as fast as answers come (closed loop).
+    #[arg(long)]
+    rate: Option<f64>,
+    /// How frames are asked for.
+    #[arg(long, value_enum, default_value_t = Mode::Session)]
+    mode: Mode,
+    /// The kind of path each user walks.
+    #[arg(long, value_enum, default_value_t = WalkKind::Street)]
+    walk: WalkKind,
+    /// Metres a user moves per frame.
+    #[arg(long, default_value_t = 0.5)]
+    step: f64,
+    /// Write the report as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+fn main() -> anyhow::Result<()> {
+    let args = Args::parse();
+    if args.users == 0 || !(args.duration > 0.0) || !(args.step > 0.0) {
+        bail!("--users, --duration and --step must be > 0");
+    }
+    if let Some(r) = args.rate {
+        if !(r > 0.0 && r.is_finite()) {
+            bail!("--rate must be a number of frames per second > 0");
+        }
+    }
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?
+        .block_on(run(args))
+}
+
+async fn run(args: Args) -> anyhow::Result<()> {
+    let target = args.target.trim_end_matches('/').to_string();
+    let http = reqwest::Client::builder()
+        .pool_max_idle_per_host(args.users as usize * 2)
+        .timeout(Duration::from_secs(30))
+        .build()?;
+    let scenes: Vec<SceneInfo> = http
+        .get(format!("{target}/scenes"))
+        .send()
+        .await
+        .with_context(|| format!("cannot reach {target}"))?
+        .error_for_status()?
+        .json()
+        .await
+        .context("GET /scenes is not a list of scenes")?;
+    let Some(scene) = scenes.iter().find(|s| s.id == args.scene) else {
+        let ids: Vec<&str> = scenes.iter().map(|s| s.id.as_str()).collect();
+        bail!(
+            "no scene '{}' on {target}; it serves: {}",
+            args.scene,
+            ids.join(", ")
+        );
+    };
+    let bounds = scene
+        .bounds
+        .clone()
+        .with_context(|| format!("scene '{}' has no geometry to walk through", scene.id))?;
+    let (method, options) = client::method_json(&args.method);
+    let recorder = Arc::new(Recorder::new());
+    let start = Instant::now();
+    let end = start + Duration::from_secs_f64(args.duration);
+    let plan = Arc::new(Plan {
+        target: target.clone(),
+        scene: args.scene.clone(),
+        method,
+        options,
+        mode: args.mode,
+        rate: args.rate,
+        walk: args.walk,
+        step: args.step,
+        bounds,
+        end,
+    });
+    let users: Vec<_> = (0..args.users)
+        .map(|u| {
+            tokio::spawn(client::user(
+                u,
+                plan.clone(),
+                http.clone(),
+                recorder.clone(),
+            ))
+        })
+        .collect();
+    let progress = {
+        let recorder = recorder.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval_at(
+                tokio::time::Instant::now() + Duration::from_secs(1),
+                Duration::from_secs(1),
+            );
+            let mut last = 0;
+            loop {
+                tick.tick().await;
+                let (requests, errors, p99) = recorder.progress();
+                eprintln!(
+                    "{:>4.0} s  {:>7} frames/s  p99 so far {:>8.3} ms  errors {}",
+                    start.elapsed().as_secs_f64(),
+                    requests - last,
+                    p99,
+                    errors
+                );
+                last = requests;
+            }
+        })
+    };
+    for u in users {
+        u.await?;
+    }
+    progress.abort();
+    let config = serde_json::json!({
+        "target": target, "scene": args.scene, "users": args.users,
+        "duration": args.duration, "method": args.method, "rate": args.rate,
+        "mode": args.mode, "walk": args.walk, "step": args.step,
+    });
+    let report = recorder.report(start.elapsed(), config);
+    print!("{}", report.table());
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}

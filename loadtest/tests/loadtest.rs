@@ -1,0 +1,216 @@
+//! The `loadtest` binary against servers started here: a real pvsd (zero
+//! errors in every mode, a complete JSON report with ordered percentiles),
+//! and a deliberately slow server that shows open-loop latency is counted
+//! from the schedule.
+
+use std::path::Path;
+use std::process::Command;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Json;
+use axum::routing::{get, post};
+use pvsd::scene::generate::{CityOptions, city};
+use pvsd::scene::load_slice;
+use pvsd::server::{AppState, Limits};
+use serde_json::{Value, json};
+
+/// Serves `router` on a loopback port from a thread of its own (the
+/// loadtest process runs while this test blocks on it).
+fn serve(router: axum::Router) -> String {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let rt = tokio::runtime::Runtime::new().unwrap();
+        rt.block_on(async move {
+            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+            tx.send(listener.local_addr().unwrap()).unwrap();
+            axum::serve(listener, router).await.unwrap();
+        });
+    });
+    format!("http://{}", rx.recv().unwrap())
+}
+
+fn pvsd_server() -> String {
+    let doc = city(&CityOptions {
+        buildings: 100,
+        ..CityOptions::default()
+    });
+    let scene = load_slice("city", &doc.to_glb(), None, Path::new("city.glb")).unwrap();
+    let state = AppState::new(vec![Arc::new(scene)], Limits::default()).unwrap();
+    serve(pvsd::server::app(state))
+}
+
+fn loadtest(args: &[&str]) -> Value {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report.json");
+    let status = Command::new(env!("CARGO_BIN_EXE_loadtest"))
+        .args(args)
+        .arg("--json")
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(status.success(), "loadtest {args:?} failed");
+    serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap()
+}
+
+#[test]
+fn every_mode_runs_without_errors_and_reports_every_field() {
+    let target = pvsd_server();
+    for (mode, rate) in [
+        ("session", None),
+        ("stateless", None),
+        ("ws", None),
+        ("session", Some("50")),
+        ("ws", Some("50")),
+    ] {
+        let mut args = vec![
+            "--target",
+            &target,
+            "--scene",
+            "city",
+            "--users",
+            "4",
+            "--duration",
+            "1.5",
+            "--mode",
+            mode,
+        ];
+        if let Some(r) = rate {
+            args.extend(["--rate", r]);
+        }
+        let r = loadtest(&args);
+        for field in [
+            "requests",
+            "errors",
+            "errors_by_kind",
+            "rps",
+            "p50_ms",
+            "p95_ms",
+            "p99_ms",
+            "p999_ms",
+            "max_ms",
+            "bytes_in",
+            "bytes_out",
+        ] {
+            assert!(r.get(field).is_some(), "{mode}: no '{field}' in {r}");
+        }
+        assert_eq!(r["errors"], 0, "{mode} {rate:?}: {r}");
+        assert!(r["requests"].as_u64().unwrap() > 20, "{mode}: {r}");
+        let p: Vec<f64> = ["p50_ms", "p95_ms", "p99_ms", "p999_ms", "max_ms"]
+            .iter()
+            .map(|k| r[k].as_f64().unwrap())
+            .collect();
+        assert!(
+            p.windows(2).all(|w| w[0] <= w[1]),
+            "{mode}: percentiles out of order {p:?}"
+        );
+        assert!(p[0] > 0.0);
+        assert!(r["bytes_in"].as_u64().unwrap() > 0 && r["bytes_out"].as_u64().unwrap() > 0);
+        if let Some(rate) = rate {
+            // 4 users × 50/s × 1.5 s, on schedule.
+            let expected = 4.0 * rate.parse::<f64>().unwrap() * 1.5;
+            let n = r["requests"].as_f64().unwrap();
+            assert!(
+                (n - expected).abs() <= 8.0,
+                "{mode}: {n} frames, not ~{expected}"
+            );
+        }
+    }
+}
+
+#[test]
+fn errors_are_counted_by_kind() {
+    let target = pvsd_server();
+    // A method the scene does not support: every session fails to start.
+    let r = loadtest(&[
+        "--target",
+        &target,
+        "--scene",
+        "city",
+        "--users",
+        "2",
+        "--duration",
+        "0.5",
+        "--method",
+        "ddo",
+    ]);
+    assert_eq!(r["errors_by_kind"]["create_session"], 2, "{r}");
+    let status = Command::new(env!("CARGO_BIN_EXE_loadtest"))
+        .args([
+            "--target",
+            &target,
+            "--scene",
+            "nowhere",
+            "--duration",
+            "0.5",
+        ])
+        .output()
+        .unwrap();
+    assert!(!status.status.success());
+    assert!(String::from_utf8_lossy(&status.stderr).contains("no scene 'nowhere'"));
+}
+
+/// A server that answers one request at a time, each after 100 ms: 5
+/// frames a second offered to a server that serves 10 a second at most is
+/// fine, 20 a second is not. Closed loop would hide it (each user waits,
+/// latency stays ~100 ms); open loop counts from the schedule, so the
+/// queue shows in the percentiles.
+#[test]
+fn open_loop_latency_counts_from_the_schedule() {
+    let lock = Arc::new(tokio::sync::Mutex::new(()));
+    let slow = {
+        let lock = lock.clone();
+        move || {
+            let lock = lock.clone();
+            async move {
+                let _one_at_a_time = lock.lock().await;
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                axum::body::Bytes::from_static(&[b'V', 0])
+            }
+        }
+    };
+    let router = axum::Router::new()
+        .route(
+            "/scenes",
+            get(|| async {
+                Json(json!([{"id": "slow", "objects": 1, "triangles": 2,
+                    "bounds": {"min": [0, 0, 0], "max": [10, 1, 10]},
+                    "up": [0, 1, 0], "methods": ["frustum"], "unsupported": {}}]))
+            }),
+        )
+        .route("/scenes/slow/visible", post(slow));
+    let target = serve(router);
+    let run = |rate: Option<&str>| {
+        let mut args = vec![
+            "--target",
+            &target,
+            "--scene",
+            "slow",
+            "--users",
+            "1",
+            "--duration",
+            "3",
+            "--mode",
+            "stateless",
+        ];
+        if let Some(r) = rate {
+            args.extend(["--rate", r]);
+        }
+        loadtest(&args)
+    };
+    let closed = run(None);
+    let under = run(Some("5"));
+    let over = run(Some("20"));
+    let p99 = |r: &Value| r["p99_ms"].as_f64().unwrap();
+    eprintln!(
+        "p99: closed {} ms, open 5/s {} ms, open 20/s {} ms",
+        p99(&closed),
+        p99(&under),
+        p99(&over)
+    );
+    assert!(p99(&closed) < 400.0, "{closed}");
+    assert!(p99(&under) < 400.0, "{under}");
+    // 60 frames due in 3 s, served at 10/s: the last waits ~3 s.
+    assert!(p99(&over) > 1500.0, "open loop hid the queue: {over}");
+    assert_eq!(over["errors"], 0);
+}
