@@ -67,13 +67,12 @@ struct Args {
 
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
-    if args.users == 0 || !(args.duration > 0.0) || !(args.step > 0.0) {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if args.users == 0 || !positive(args.duration) || !positive(args.step) {
         bail!("--users, --duration and --step must be > 0");
     }
-    if let Some(r) = args.rate {
-        if !(r > 0.0 && r.is_finite()) {
-            bail!("--rate must be a number of frames per second > 0");
-        }
+    if args.rate.is_some_and(|r| !positive(r)) {
+        bail!("--rate must be a number of frames per second > 0");
     }
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
