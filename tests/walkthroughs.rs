@@ -214,7 +214,17 @@ async fn a_user_whose_session_expires_leaves_the_walkthrough() {
 /// visible by every method of the scene.
 #[test]
 fn users_visible_never_drops_an_avatar_truth_shows() {
-    let scene = city_scene(300, 11, [0.0; 3]);
+    avatars_against_truth([0.0; 3]);
+}
+
+/// DESIGN's numerical extreme: the same far from the origin.
+#[test]
+fn users_visible_never_drops_an_avatar_truth_shows_at_1e6() {
+    avatars_against_truth([1e6, 0.0, 1e6]);
+}
+
+fn avatars_against_truth(offset: [f32; 3]) {
+    let scene = city_scene(300, 11, offset);
     let params = |kind, seed| WalkParams {
         kind,
         frames: 24,
@@ -252,11 +262,14 @@ fn users_visible_never_drops_an_avatar_truth_shows() {
     let first = b.object_count() as u32;
     for bx in &boxes {
         b.begin_object("avatar", Some(false));
-        let o = scene.origin.as_vec3();
+        // Built in local coordinates, moved to the world in f64: at 1e6 an
+        // f32 world box would not be the box the method tests.
         let mut m = pvsd::scene::generate::MeshBuilder::new();
-        m.cuboid(bx.min + o, bx.max + o, true);
+        m.cuboid(bx.min, bx.max, true);
         b.add_triangles(
-            m.build(false).triangles().map(|t| t.map(|v| v.as_dvec3())),
+            m.build(false)
+                .triangles()
+                .map(|t| t.map(|v| v.as_dvec3() + scene.origin)),
             false,
         );
     }

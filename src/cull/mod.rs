@@ -124,6 +124,12 @@ impl VisibleSet {
         &self.ids
     }
 
+    /// Bytes its buffers hold on the heap.
+    pub fn heap_bytes(&self) -> usize {
+        self.ids.capacity() * std::mem::size_of::<u32>()
+            + self.areas.capacity() * std::mem::size_of::<(u32, f64)>()
+    }
+
     /// How many ids.
     pub fn len(&self) -> usize {
         self.ids.len()
@@ -319,7 +325,7 @@ impl<M: CullMethod> Culler for M {
         let state = cache
             .state
             .downcast_mut::<M::State>()
-            .unwrap_or_else(|| panic!("a '{method}' cache handed to '{}'", CullMethod::name(self)));
+            .unwrap_or_else(|| wrong_cache(method, CullMethod::name(self)));
         out.clear();
         let start = Instant::now();
         let counters = CullMethod::cull_dynamic(self, view, state, out, dynamic, visible);
@@ -339,15 +345,17 @@ impl<M: CullMethod> Culler for M {
     }
 
     fn cache_bytes(&self, cache: &ClientCache) -> usize {
-        let state = cache.state.downcast_ref::<M::State>().unwrap_or_else(|| {
-            panic!(
-                "a '{}' cache handed to '{}'",
-                cache.method,
-                CullMethod::name(self)
-            )
-        });
+        let state = cache
+            .state
+            .downcast_ref::<M::State>()
+            .unwrap_or_else(|| wrong_cache(cache.method, CullMethod::name(self)));
         self.state_bytes(state)
     }
+}
+
+/// A cache made by one method handed to another: a caller bug.
+fn wrong_cache(made_by: &str, handed_to: &str) -> ! {
+    panic!("a '{made_by}' cache handed to '{handed_to}'")
 }
 
 /// A scene with the methods it supports, ready to answer views.

@@ -5,6 +5,8 @@
 //! `spawn_blocking`, since past ~100 µs it would stall the worker's other
 //! requests.
 
+use std::sync::Arc;
+
 use axum::Json;
 use axum::extract::{OriginalUri, Path, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
@@ -19,7 +21,7 @@ use super::wire::{
     Bounds, FrameResponse, ObjectInfo, SceneInfo, SessionCreated, SessionRequest, UserJoined,
     ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo, method_spec,
 };
-use crate::cull::{View, VisibleSet};
+use crate::cull::{MethodSpec, SceneMethods, View, VisibleSet};
 
 /// `GET /healthz`: 200 while the server runs.
 pub async fn healthz() -> &'static str {
@@ -125,14 +127,24 @@ pub async fn visible(
     .into_response())
 }
 
+/// The scene and method spec of a `SessionRequest` body (sessions and
+/// walkthroughs are made from the same body).
+fn scene_and_spec(
+    state: &AppState,
+    body: &[u8],
+) -> Result<(Arc<SceneMethods>, MethodSpec), ApiError> {
+    let req: SessionRequest = parse(body)?;
+    let methods = state.scene(&req.scene)?.clone();
+    let spec = method_spec(req.method.as_deref(), &req.options)?;
+    Ok((methods, spec))
+}
+
 /// `POST /sessions`: a session of one scene and method.
 pub async fn create_session(
     State(state): State<AppState>,
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<SessionCreated>), ApiError> {
-    let req: SessionRequest = parse(&body)?;
-    let methods = state.scene(&req.scene)?.clone();
-    let spec = method_spec(req.method.as_deref(), &req.options)?;
+    let (methods, spec) = scene_and_spec(&state, &body)?;
     let (method, cache) = methods.prepare_client(&spec)?;
     let name = method.name().to_string();
     let session = state
@@ -163,7 +175,9 @@ pub async fn answer_frame(
         // Keeps the walkthrough alive while its users walk.
         let _ = state.walkthroughs().get(&user.walkthrough.id);
     }
-    state.sessions().resized(&session, answered.bytes);
+    if let Some(bytes) = answered.resized {
+        state.sessions().resized(&session, bytes);
+    }
     let stats = answered.stats;
     state.metrics().observe_cull(
         &session.scene.scene().id,
@@ -203,9 +217,7 @@ pub async fn create_walkthrough(
     State(state): State<AppState>,
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<WalkthroughCreated>), ApiError> {
-    let req: SessionRequest = parse(&body)?;
-    let methods = state.scene(&req.scene)?.clone();
-    let spec = method_spec(req.method.as_deref(), &req.options)?;
+    let (methods, spec) = scene_and_spec(&state, &body)?;
     // Refuse a bad method now rather than at the first user.
     let method = methods.prepare_client(&spec)?.0.name();
     let w = state.walkthroughs().create(methods, spec, method);

@@ -55,6 +55,8 @@ pub struct Session {
     pub method: Arc<dyn Culler>,
     /// The walkthrough and user it belongs to, if any.
     pub user: Option<User>,
+    /// Its bytes when made (what the store first weighs it at).
+    created_bytes: usize,
     frames: Arc<tokio::sync::Mutex<Frames>>,
 }
 
@@ -68,6 +70,8 @@ struct Frames {
     visible: VisibleSet,
     base: Vec<u32>,
     users_visible: Vec<bool>,
+    /// Bytes the store last weighed the session at.
+    weighed: usize,
 }
 
 /// A frame's answer, with what it cost and the session's new size.
@@ -76,8 +80,9 @@ pub struct Answered {
     pub frame: FrameResponse,
     /// The cull's stats.
     pub stats: CullStats,
-    /// The session's bytes after it.
-    pub bytes: usize,
+    /// The session's bytes, when they moved by more than an eighth since
+    /// the store last weighed it ([`Sessions::resized`]).
+    pub resized: Option<usize>,
 }
 
 impl Session {
@@ -88,19 +93,23 @@ impl Session {
         cache: ClientCache,
         user: Option<User>,
     ) -> Session {
+        let mut frames = Frames {
+            cache,
+            next: 1,
+            kept: VecDeque::with_capacity(KEEP_FRAMES + 1),
+            visible: VisibleSet::new(),
+            base: Vec::new(),
+            users_visible: Vec::new(),
+            weighed: 0,
+        };
+        frames.weighed = frames.bytes(&*method);
         Session {
             id: random_id(),
             scene,
             method,
             user,
-            frames: Arc::new(tokio::sync::Mutex::new(Frames {
-                cache,
-                next: 1,
-                kept: VecDeque::with_capacity(KEEP_FRAMES + 1),
-                visible: VisibleSet::new(),
-                base: Vec::new(),
-                users_visible: Vec::new(),
-            })),
+            created_bytes: frames.weighed,
+            frames: Arc::new(tokio::sync::Mutex::new(frames)),
         }
     }
 
@@ -115,7 +124,6 @@ impl Session {
             .user
             .as_ref()
             .map(|u| u.moved(&view.camera, &self.scene.scene().origin));
-        let fixed = std::mem::size_of::<Session>() + std::mem::size_of::<Frames>();
         let work = move || {
             let f = &mut *frames;
             let boxes: Vec<_> = others.iter().flatten().map(|(_, b)| *b).collect();
@@ -135,11 +143,15 @@ impl Session {
                     .map(|((user, _), _)| user)
                     .collect()
             });
-            let bytes = fixed + f.bytes() + method.cache_bytes(&f.cache);
+            let bytes = f.bytes(&*method);
+            let resized = (bytes.abs_diff(f.weighed) > f.weighed / 8).then(|| {
+                f.weighed = bytes;
+                bytes
+            });
             Answered {
                 frame: answer,
                 stats,
-                bytes,
+                resized,
             }
         };
         if self.method.is_cheap() {
@@ -182,12 +194,16 @@ impl Frames {
         out
     }
 
-    /// Bytes on the heap, besides the method's cache.
-    fn bytes(&self) -> usize {
-        self.kept.iter().map(|(_, s)| 16 + s.bytes()).sum::<usize>()
-            + self.visible.len() * std::mem::size_of::<u32>()
+    /// The session's bytes: itself, its kept frames and buffers, and the
+    /// method's cache.
+    fn bytes(&self, method: &dyn Culler) -> usize {
+        std::mem::size_of::<Session>()
+            + std::mem::size_of::<Frames>()
+            + self.kept.iter().map(|(_, s)| 16 + s.bytes()).sum::<usize>()
+            + self.visible.heap_bytes()
             + self.base.capacity() * std::mem::size_of::<u32>()
             + self.users_visible.capacity()
+            + method.cache_bytes(&self.cache)
     }
 }
 
@@ -280,8 +296,7 @@ impl Sessions {
     /// Stores a new session.
     pub fn insert(&self, session: Session) -> Arc<Session> {
         let session = Arc::new(session);
-        let bytes = std::mem::size_of::<Session>() + session.method_bytes();
-        let slot = self.slot(session.clone(), bytes);
+        let slot = self.slot(session.clone(), session.created_bytes);
         self.bytes.fetch_add(slot.bytes, Ordering::Relaxed);
         self.live.insert(session.id.clone(), slot);
         session
@@ -311,17 +326,15 @@ impl Sessions {
         }
     }
 
-    /// Records a session's new size after a frame (if it is still live and
-    /// its size moved by more than an eighth).
+    /// Re-weighs a session at its new size, if it is still live (a frame
+    /// answers [`Answered::resized`] only when the size moved enough to
+    /// matter, so most frames never write to the store).
     pub fn resized(&self, session: &Arc<Session>, bytes: usize) {
         let new = self.slot(session.clone(), bytes);
         self.live
             .entry(session.id.clone())
             .and_compute_with(|old| match old {
-                Some(e)
-                    if Arc::ptr_eq(&e.value().session, session)
-                        && e.value().bytes.abs_diff(new.bytes) > e.value().bytes / 8 =>
-                {
+                Some(e) if Arc::ptr_eq(&e.value().session, session) => {
                     self.bytes.fetch_add(new.bytes, Ordering::Relaxed);
                     Op::Put(new)
                 }
@@ -346,14 +359,5 @@ impl Sessions {
     /// The limits in force.
     pub fn limits(&self) -> SessionLimits {
         self.limits
-    }
-}
-
-impl Session {
-    fn method_bytes(&self) -> usize {
-        // Not locked by anyone yet: the session is new.
-        self.frames
-            .try_lock()
-            .map_or(0, |f| self.method.cache_bytes(&f.cache))
     }
 }
