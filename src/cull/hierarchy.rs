@@ -132,6 +132,11 @@ pub(crate) fn cull(
                     marks[i as usize] = false;
                     visible_leaves.push(i);
                     for &id in tree.node_refs(node) {
+                        if out.contains(id) {
+                            // Accepted through another leaf: no test can
+                            // take it back.
+                            continue;
+                        }
                         let part = scene.objects()[id as usize].bounds.clipped(&node.cell);
                         if view.frustum.classify_exact(&part, mask).0 != Side::Outside
                             && test(Target::Object(id), &part) != Visibility::Invisible

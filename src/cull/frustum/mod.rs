@@ -124,6 +124,10 @@ pub(crate) fn cull_subtree(
             }
             (Side::Intersecting, NodeKind::Leaf) => {
                 for &id in tree.node_refs(node) {
+                    if out.contains(id) {
+                        // Accepted through another leaf (the ground is in all).
+                        continue;
+                    }
                     // Only the part inside this leaf's cell: the rest of the
                     // box lies in other leaves, which test their own part.
                     let part = objects[id as usize].bounds.clipped(&node.cell);
