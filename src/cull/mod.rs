@@ -135,9 +135,24 @@ impl VisibleSet {
 
     /// Adds ids; repeats change nothing.
     pub fn extend_from_slice(&mut self, ids: &[u32]) {
+        // Whole subtrees of a kd-tree come here, many of their ids repeats:
+        // write every id and advance past the new ones only, so a repeat
+        // costs no mispredicted branch (growing is rare and predicted).
+        let mut len = self.ids.len();
+        self.ids.resize(len + ids.len(), 0);
         for &id in ids {
-            self.push(id);
+            let w = id as usize >> 6;
+            if w >= self.members.len() {
+                self.members.resize(w + 1, 0);
+            }
+            let word = &mut self.members[w];
+            let bit = 1u64 << (id & 63);
+            let new = *word & bit == 0;
+            *word |= bit;
+            self.ids[len] = id;
+            len += usize::from(new);
         }
+        self.ids.truncate(len);
     }
 
     /// Keeps only the ids `keep` accepts (aggressive methods drop objects this way).
@@ -561,10 +576,15 @@ mod tests {
             for (pushed, cut, retain) in frames {
                 set.clear();
                 let mut expected: BTreeSet<u32> = BTreeSet::new();
-                for &id in &pushed {
-                    set.push(id);
-                    expected.insert(id);
+                // Alternately one by one and as slices, as kd subtrees come.
+                for (i, chunk) in pushed.chunks(7).enumerate() {
+                    if i % 2 == 0 {
+                        set.extend_from_slice(chunk);
+                    } else {
+                        chunk.iter().for_each(|&id| set.push(id));
+                    }
                 }
+                expected.extend(pushed.iter().copied());
                 if retain {
                     set.retain(|&id| id < cut);
                     expected.retain(|&id| id < cut);

@@ -139,13 +139,20 @@ impl Reader<'_> {
     }
 
     fn ids(&mut self) -> Result<Vec<u32>, DecodeError> {
+        let mut ids = Vec::new();
+        self.ids_into(&mut ids)?;
+        Ok(ids)
+    }
+
+    /// Appends an id set to `ids`.
+    fn ids_into(&mut self, ids: &mut Vec<u32>) -> Result<(), DecodeError> {
         let n = self.varint()?;
         // Each id takes at least a byte: a count past the bytes left is a
         // lie, and must not make us allocate it.
         if n > (self.bytes.len() - self.at) as u64 {
             return Err(DecodeError::Truncated(self.bytes.len()));
         }
-        let mut ids = Vec::with_capacity(n as usize);
+        ids.reserve(n as usize);
         let mut next = 0u64;
         for _ in 0..n {
             let at = self.at;
@@ -156,7 +163,7 @@ impl Reader<'_> {
             ids.push(id as u32);
             next = id + 1;
         }
-        Ok(ids)
+        Ok(())
     }
 
     fn string(&mut self) -> Result<String, DecodeError> {
@@ -244,7 +251,8 @@ impl IdSet {
             at: 0,
         };
         out.clear();
-        out.extend(r.ids().expect("an IdSet holds what IdSet::new encoded"));
+        r.ids_into(out)
+            .expect("an IdSet holds what IdSet::new encoded");
     }
 
     /// Bytes held.

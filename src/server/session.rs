@@ -67,7 +67,12 @@ struct Frames {
     next: u64,
     /// The last frames sent, oldest first.
     kept: VecDeque<(u64, IdSet)>,
+    /// This frame's set, while it is culled and answered.
     visible: VisibleSet,
+    /// The last frame's set (the newest in `kept`), decoded: most clients
+    /// hold it, and diffing against it needs no decoding.
+    previous: VisibleSet,
+    /// An older base, decoded.
     base: Vec<u32>,
     users_visible: Vec<bool>,
     /// Bytes the store last weighed the session at.
@@ -98,6 +103,7 @@ impl Session {
             next: 1,
             kept: VecDeque::with_capacity(KEEP_FRAMES + 1),
             visible: VisibleSet::new(),
+            previous: VisibleSet::new(),
             base: Vec::new(),
             users_visible: Vec::new(),
             weighed: 0,
@@ -126,6 +132,8 @@ impl Session {
             .map(|u| u.moved(&view.camera, &self.scene.scene().origin));
         let work = move || {
             let f = &mut *frames;
+            // The last frame's set becomes `previous`; its buffers take this one.
+            std::mem::swap(&mut f.visible, &mut f.previous);
             let boxes: Vec<_> = others.iter().flatten().map(|(_, b)| *b).collect();
             let stats = method.cull_dynamic(
                 &view,
@@ -179,10 +187,16 @@ impl Frames {
             frame,
             ..FrameResponse::default()
         };
+        let last = self.kept.back().map(|(n, _)| *n);
         match held {
             Some((n, set)) => {
-                set.decode_into(&mut self.base);
-                diff(&self.base, ids, &mut out.added, &mut out.removed);
+                let old = if Some(*n) == last {
+                    self.previous.ids()
+                } else {
+                    set.decode_into(&mut self.base);
+                    &self.base
+                };
+                diff(old, ids, &mut out.added, &mut out.removed);
                 out.base = Some(*n);
             }
             None => out.added = ids.to_vec(),
@@ -201,6 +215,7 @@ impl Frames {
             + std::mem::size_of::<Frames>()
             + self.kept.iter().map(|(_, s)| 16 + s.bytes()).sum::<usize>()
             + self.visible.heap_bytes()
+            + self.previous.heap_bytes()
             + self.base.capacity() * std::mem::size_of::<u32>()
             + self.users_visible.capacity()
             + method.cache_bytes(&self.cache)
