@@ -85,6 +85,8 @@ async fn run(args: Args) -> anyhow::Result<()> {
     let http = reqwest::Client::builder()
         .pool_max_idle_per_host(args.users as usize * 2)
         .timeout(Duration::from_secs(30))
+        // pvsd never redirects; following redirects costs every request.
+        .redirect(reqwest::redirect::Policy::none())
         .build()?;
     let scenes: Vec<SceneInfo> = http
         .get(format!("{target}/scenes"))

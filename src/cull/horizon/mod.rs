@@ -407,7 +407,18 @@ impl CullMethod for HorizonCulling {
                         continue;
                     }
                     for &o in self.quadtree.objects(cell) {
+                        // Stamped and frustum-tested as the cell opens, so
+                        // repeats and objects outside the view never
+                        // enter the queue (most of its cost).
+                        if state.stamps[o as usize] == state.frame {
+                            continue;
+                        }
+                        state.stamps[o as usize] = state.frame;
+                        counters.nodes_tested += 1;
                         let b = &objects[o as usize].bounds;
+                        if view.frustum.classify_exact(b, planes).0 == Side::Outside {
+                            continue;
+                        }
                         state.queue.push(Event {
                             depth: sweep.near_depth(b),
                             kind: Kind::Object,
@@ -430,14 +441,6 @@ impl CullMethod for HorizonCulling {
                 }
                 Kind::Object => {
                     let o = &objects[ev.index as usize];
-                    if state.stamps[o.id as usize] == state.frame {
-                        continue;
-                    }
-                    state.stamps[o.id as usize] = state.frame;
-                    counters.nodes_tested += 1;
-                    if view.frustum.classify_exact(&o.bounds, ev.planes).0 == Side::Outside {
-                        continue;
-                    }
                     let frame = sweep.occludes.then(|| sweep.frame(&o.bounds)).flatten();
                     if let Some(f) = frame {
                         if state.horizon.hides(f.x_lo, f.x_hi, f.y_hi) {
