@@ -30,7 +30,7 @@
 //! with nothing provable (an open mesh, a floating box, a see-through shell,
 //! a sphere) gets no prism and only ever occludes nothing.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::ops::Range;
 
 use glam::{DVec2, DVec3, Vec3};
@@ -145,7 +145,7 @@ impl Sheet {
             DVec2::new(d.dot(e1), d.dot(e2))
         };
         let mut triangles = Vec::new();
-        let mut edges: HashMap<EdgeKey, (u32, [DVec2; 2])> = HashMap::new();
+        let mut edges: FxHashMap<EdgeKey, (u32, [DVec2; 2])> = FxHashMap::default();
         for t in tris {
             if !t
                 .iter()

@@ -1,6 +1,6 @@
 //! Merging an object's coplanar triangles into maximal convex polygons.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use glam::{DVec3, Vec3};
 
@@ -68,7 +68,7 @@ fn key(v: Vec3) -> Key {
 /// Groups triangles by plane, then merges triangles that share an edge
 /// exactly while the union stays convex.
 fn merge_coplanar(tris: &[[Vec3; 3]]) -> Vec<ConvexPolygon> {
-    let mut groups: HashMap<[i64; 4], Vec<Vec<Vec3>>> = HashMap::new();
+    let mut groups: FxHashMap<[i64; 4], Vec<Vec<Vec3>>> = FxHashMap::default();
     for t in tris {
         let n = (t[1] - t[0]).as_dvec3().cross((t[2] - t[0]).as_dvec3());
         let Some(n) = n.try_normalize() else { continue };
@@ -97,7 +97,7 @@ fn merge_coplanar(tris: &[[Vec3; 3]]) -> Vec<ConvexPolygon> {
 fn merge_group(mut polys: Vec<Vec<Vec3>>) -> Vec<Vec<Vec3>> {
     let mut alive = vec![true; polys.len()];
     loop {
-        let mut edges: HashMap<(Key, Key), usize> = HashMap::new();
+        let mut edges: FxHashMap<(Key, Key), usize> = FxHashMap::default();
         for (i, p) in polys.iter().enumerate().filter(|(i, _)| alive[*i]) {
             for e in 0..p.len() {
                 edges.insert((key(p[e]), key(p[(e + 1) % p.len()])), i);

@@ -19,7 +19,7 @@
 //! Every object is tested with its whole box (its part in a leaf), never
 //! from its centre only.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::sync::Arc;
 
 use glam::DVec3;
@@ -45,7 +45,7 @@ pub struct SupportingPlanesCulling {
 /// occluder that hid it last frame.
 pub struct SupportingPlanesState {
     selection: Selection,
-    hidden_by: HashMap<u32, u32>,
+    hidden_by: FxHashMap<u32, u32>,
 }
 
 /// One occluder seen from this frame's eye.
@@ -63,7 +63,7 @@ impl SupportingPlanesCulling {
     /// The method over `tree` with the scene's `occluders`.
     pub fn new(scene: Arc<Scene>, tree: Arc<KdTree>, occluders: Arc<Occluders>) -> Self {
         let key = |v: DVec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
-        let mut by_edge: HashMap<([u64; 3], [u64; 3]), Vec<u32>> = HashMap::new();
+        let mut by_edge: FxHashMap<([u64; 3], [u64; 3]), Vec<u32>> = FxHashMap::default();
         for (i, o) in occluders.all().iter().enumerate() {
             let v = &o.polygon.vertices;
             for e in 0..v.len() {
@@ -206,7 +206,7 @@ impl CullMethod for SupportingPlanesCulling {
         r.finish()?;
         Ok(SupportingPlanesState {
             selection,
-            hidden_by: HashMap::new(),
+            hidden_by: FxHashMap::default(),
         })
     }
 
@@ -236,7 +236,7 @@ impl CullMethod for SupportingPlanesCulling {
             .iter()
             .filter_map(|(i, part)| self.shadow(*i, part, eye, eps))
             .collect();
-        let slot: HashMap<u32, usize> = shadows
+        let slot: FxHashMap<u32, usize> = shadows
             .iter()
             .enumerate()
             .map(|(s, sh)| (sh.index, s))
