@@ -123,6 +123,12 @@ async fn visible_matches_the_library() {
     .await;
     assert_eq!(status, StatusCode::OK, "{body}");
     assert_eq!(body["stats"]["method"], "frustum");
+    // Answers are written into pre-sized buffers, still as JSON.
+    let req = Request::post("/scenes/city/visible")
+        .body(Body::from(VIEW))
+        .unwrap();
+    let res = app(s.clone()).oneshot(req).await.unwrap();
+    assert_eq!(res.headers()["content-type"], "application/json");
 }
 
 /// Each bad request: its status, its code, a part of its message.

@@ -84,6 +84,10 @@ fn binary_body(bytes: Vec<u8>) -> Response {
     ([(header::CONTENT_TYPE, binary::CONTENT_TYPE)], bytes).into_response()
 }
 
+fn json_body(bytes: Vec<u8>) -> Response {
+    ([(header::CONTENT_TYPE, "application/json")], bytes).into_response()
+}
+
 /// `POST /scenes/{id}/visible`: the potentially visible set of one view
 /// (JSON with stats, or the ids alone as `application/x-pvs`).
 pub async fn visible(
@@ -119,12 +123,12 @@ pub async fn visible(
     if wants_binary(&headers) {
         return Ok(binary_body(binary::encode_visible(out.ids())));
     }
-    Ok(Json(VisibleResponse {
+    let answer = VisibleResponse {
         visible: out.ids().to_vec(),
         areas: out.areas(),
         stats: stats.into(),
-    })
-    .into_response())
+    };
+    Ok(json_body(answer.to_json()))
 }
 
 /// The scene and method spec of a `SessionRequest` body (sessions and
@@ -199,7 +203,7 @@ pub async fn frames(
     Ok(if wants_binary(&headers) {
         binary_body(binary::encode_frame(&frame))
     } else {
-        Json(frame).into_response()
+        json_body(frame.to_json())
     })
 }
 

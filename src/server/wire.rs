@@ -250,6 +250,32 @@ pub struct VisibleResponse {
     pub stats: StatsBody,
 }
 
+/// `value` as JSON into a buffer sized for `ids` ids up front: an answer
+/// of thousands of ids would otherwise grow its buffer a dozen times.
+fn json_sized(value: &impl Serialize, ids: usize) -> Vec<u8> {
+    // Ids of a scene under a million objects print in at most 7 bytes with
+    // their comma; the rest of a body is well under 256.
+    let mut out = Vec::with_capacity(256 + ids * 7);
+    serde_json::to_writer(&mut out, value).expect("answers serialize");
+    out
+}
+
+impl VisibleResponse {
+    /// The JSON body.
+    pub fn to_json(&self) -> Vec<u8> {
+        let areas = self.areas.as_ref().map_or(0, |a| a.len() * 3);
+        json_sized(self, self.visible.len() + areas)
+    }
+}
+
+impl FrameResponse {
+    /// The JSON body.
+    pub fn to_json(&self) -> Vec<u8> {
+        let users = self.users_visible.as_ref().map_or(0, |u| u.len() * 5);
+        json_sized(self, self.added.len() + self.removed.len() + users)
+    }
+}
+
 /// The body of `POST /sessions` and `POST /walkthroughs`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]

@@ -84,8 +84,8 @@ async fn serve(state: AppState, sid: String, mut socket: WebSocket, binary: bool
         let reply = match answer_frame(&state, &sid, body.as_bytes()).await {
             Ok(frame) if binary => Message::Binary(binary::encode_frame(&frame).into()),
             Ok(frame) => Message::Text(
-                serde_json::to_string(&frame)
-                    .expect("a frame serializes")
+                String::from_utf8(frame.to_json())
+                    .expect("JSON is UTF-8")
                     .into(),
             ),
             Err(e) => {
