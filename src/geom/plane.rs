@@ -90,6 +90,23 @@ impl Plane {
         }
     }
 
+    /// The smallest and largest signed distance of the box's eight corners,
+    /// from two of them (n-vertex, p-vertex). Exactly what evaluating all
+    /// eight with [`Plane::signed_distance`] and taking the extremes gives,
+    /// rounding included: each product and sum of the dot product is
+    /// monotone in each coordinate (see [`Plane::classify`]). An empty box
+    /// has no corners: `(+inf, -inf)`.
+    pub fn box_range(&self, b: &Aabb) -> (f64, f64) {
+        if b.is_empty() {
+            return (f64::INFINITY, f64::NEG_INFINITY);
+        }
+        let (p, n) = self.extreme_corners(b);
+        (
+            self.signed_distance(n.as_dvec3()),
+            self.signed_distance(p.as_dvec3()),
+        )
+    }
+
     /// `(p-vertex, n-vertex)` of the box for this normal.
     fn extreme_corners(&self, b: &Aabb) -> (Vec3, Vec3) {
         let pick = |n: f64, lo: f32, hi: f32| if n >= 0.0 { (hi, lo) } else { (lo, hi) };
@@ -108,6 +125,42 @@ impl Plane {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_box_range_is_the_range_of_its_eight_corners_bit_for_bit() {
+        // Awkward magnitudes, so rounding differs from corner to corner.
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for _ in 0..2000 {
+            let n = DVec3::new(next(), next(), next()) * 3.0;
+            let Some(plane) = Plane::from_point_normal(DVec3::new(next(), next(), next()) * 1e6, n)
+            else {
+                continue;
+            };
+            let c = Vec3::new(next() as f32, next() as f32, next() as f32) * 1e6;
+            let h = Vec3::new(next() as f32, next() as f32, next() as f32).abs() * 1e3;
+            let b = Aabb::new(c - h, c + h);
+            let want = b
+                .corners()
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |r, c| {
+                    let d = plane.signed_distance(c.as_dvec3());
+                    (r.0.min(d), r.1.max(d))
+                });
+            assert_eq!(plane.box_range(&b), want);
+        }
+        assert_eq!(
+            Plane::from_point_normal(DVec3::ZERO, DVec3::Y)
+                .unwrap()
+                .box_range(&Aabb::EMPTY),
+            (f64::INFINITY, f64::NEG_INFINITY)
+        );
+    }
 
     fn unit_box() -> Aabb {
         Aabb::new(Vec3::ZERO, Vec3::ONE)

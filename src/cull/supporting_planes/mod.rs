@@ -167,9 +167,16 @@ fn inside(s: &Shadow, pts: &[DVec3], skip: Option<usize>, eps: f64) -> bool {
             .all(|(e, p)| Some(e) == skip || range(p, pts).1 < -eps)
 }
 
-/// Whether the points lie wholly outside the shadow (clear of the occluder).
-fn outside(s: &Shadow, pts: &[DVec3], eps: f64) -> bool {
-    range(&s.plane, pts).0 > eps || s.edges.iter().any(|p| range(p, pts).0 > eps)
+/// [`inside`] for a box's eight corners, from two corners a plane.
+fn inside_box(s: &Shadow, b: &Aabb, eps: f64) -> bool {
+    !b.is_empty()
+        && s.plane.box_range(b).1 < -eps
+        && s.edges.iter().all(|p| p.box_range(b).1 < -eps)
+}
+
+/// Whether the box lies wholly outside the shadow (clear of the occluder).
+fn outside_box(s: &Shadow, b: &Aabb, eps: f64) -> bool {
+    s.plane.box_range(b).0 > eps || s.edges.iter().any(|p| p.box_range(b).0 > eps)
 }
 
 /// The corners of the part of box `b` on the negative side of `plane`.
@@ -278,15 +285,14 @@ impl CullMethod for SupportingPlanesCulling {
         let hidden_by = &mut state.hidden_by;
         let mut clear: Vec<bool> = Vec::with_capacity(shadows.len());
         let mut test = |target: Target, b: &Aabb| {
-            let corners = b.corners().map(|c| c.as_dvec3());
             if let Target::Node(n) = target {
                 if let Some(&s) = hidden_by.get(&n).and_then(|o| slot.get(o)) {
-                    if inside(&shadows[s], &corners, None, eps) {
+                    if inside_box(&shadows[s], b, eps) {
                         return Visibility::Invisible;
                     }
                 }
             }
-            if let Some(s) = shadows.iter().position(|s| inside(s, &corners, None, eps)) {
+            if let Some(s) = shadows.iter().position(|s| inside_box(s, b, eps)) {
                 if let Target::Node(n) = target {
                     hidden_by.insert(n, shadows[s].index);
                 }
@@ -296,10 +302,11 @@ impl CullMethod for SupportingPlanesCulling {
             // visible"; a pair with one of them cannot hide the box either
             // (its part on that side would have to be in that shadow).
             clear.clear();
-            clear.extend(shadows.iter().map(|s| outside(s, &corners, eps)));
+            clear.extend(shadows.iter().map(|s| outside_box(s, b, eps)));
             if clear.iter().all(|&c| c) {
                 return Visibility::Full;
             }
+            let corners = b.corners().map(|c| c.as_dvec3());
             for &(s, ea, t, eb, cut) in &pairs {
                 if clear[s] || clear[t] {
                     continue;
