@@ -310,7 +310,7 @@ impl OcclusionTree {
                     self.leaf_region(&self.fragments[*fragment as usize], b, leaf_test)
                 }
                 Node::Inner { plane, front, back } => {
-                    let (lo, hi) = box_range(plane, b);
+                    let (lo, hi) = plane.box_range(b);
                     if lo > self.eps {
                         stack.push(*front);
                     } else if hi < -self.eps {
@@ -330,7 +330,7 @@ impl OcclusionTree {
     }
 
     fn leaf_region(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> Visibility {
-        let (lo, hi) = box_range(&f.plane, b);
+        let (lo, hi) = f.plane.box_range(b);
         if hi < -self.eps {
             return Visibility::Invisible;
         }
@@ -351,7 +351,8 @@ impl OcclusionTree {
     /// by the pyramid's faces only, or (exact) by every axis that could.
     fn misses_pyramid(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> bool {
         let c = (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5;
-        let r = (b.max - b.min).as_dvec3() * 0.5;
+        // Half-extents in f64: an f32 difference of far-apart bounds rounds.
+        let r = (b.max.as_dvec3() - b.min.as_dvec3()) * 0.5;
         let (all, exact_from) = f.axes(self.eye);
         let axes = match leaf_test {
             LeafTest::Conservative => &all[..*exact_from],
@@ -468,15 +469,6 @@ impl OcclusionTree {
         }
         result.visibility()
     }
-}
-
-/// The smallest and largest signed distance of a box's corners to a plane.
-fn box_range(plane: &Plane, b: &Aabb) -> (f64, f64) {
-    let c = (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5;
-    let r = (b.max - b.min).as_dvec3() * 0.5;
-    let d = plane.signed_distance(c);
-    let e = plane.normal.abs().dot(r);
-    (d - e, d + e)
 }
 
 /// Splits a flagged polygon by a shadow plane. An edge on the plane (on or
