@@ -232,25 +232,32 @@ impl Sweep {
     /// reaches the eye's vertical plane, or it leaves a window that does not
     /// hold the whole frustum.
     fn frame(&self, b: &Aabb) -> Option<Frame> {
-        let mut f = Frame {
-            x_lo: f64::INFINITY,
-            x_hi: f64::NEG_INFINITY,
-            y_lo: f64::INFINITY,
-            y_hi: f64::NEG_INFINITY,
-        };
-        for c in b.corners() {
-            let rel = c.as_dvec3() - self.eye;
+        let (lo, hi) = (b.min.as_dvec3() - self.eye, b.max.as_dvec3() - self.eye);
+        // `d` and `r` are horizontal (y exactly 0), so a corner's depth and
+        // screen x are those of its footprint corner whatever its height:
+        // four corners give them, and the box's bottom and top give y from
+        // the nearest and farthest depth (y / t is monotone in t, rounding
+        // included). The same values as projecting all eight corners.
+        let tall = lo.y.abs().max(hi.y.abs());
+        let (mut t_near, mut t_far) = (f64::INFINITY, f64::NEG_INFINITY);
+        let (mut x_lo, mut x_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for (x, z) in [(lo.x, lo.z), (hi.x, lo.z), (lo.x, hi.z), (hi.x, hi.z)] {
+            let rel = DVec3::new(x, 0.0, z);
             let t = rel.dot(self.d);
-            if t.partial_cmp(&(DEPTH_EPSILON * rel.abs().max_element())) != Some(Ordering::Greater)
-            {
+            let size = x.abs().max(z.abs()).max(tall);
+            if t.partial_cmp(&(DEPTH_EPSILON * size)) != Some(Ordering::Greater) {
                 return None;
             }
-            let (x, y) = (rel.dot(self.r) / t, rel.y / t);
-            f.x_lo = f.x_lo.min(x);
-            f.x_hi = f.x_hi.max(x);
-            f.y_lo = f.y_lo.min(y);
-            f.y_hi = f.y_hi.max(y);
+            let x = rel.dot(self.r) / t;
+            (x_lo, x_hi) = (x_lo.min(x), x_hi.max(x));
+            (t_near, t_far) = (t_near.min(t), t_far.max(t));
         }
+        let f = Frame {
+            x_lo,
+            x_hi,
+            y_lo: lo.y / if lo.y >= 0.0 { t_far } else { t_near },
+            y_hi: hi.y / if hi.y >= 0.0 { t_near } else { t_far },
+        };
         if !self.clamped && (f.x_lo < self.x0 || f.x_hi > self.x1) {
             return None;
         }
@@ -548,4 +555,78 @@ fn area_bound(
         }
     }
     bound
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::*;
+
+    /// The frame by projecting all eight corners, as the paper draws it.
+    fn frame_of_corners(s: &Sweep, b: &Aabb) -> Option<Frame> {
+        let mut f = Frame {
+            x_lo: f64::INFINITY,
+            x_hi: f64::NEG_INFINITY,
+            y_lo: f64::INFINITY,
+            y_hi: f64::NEG_INFINITY,
+        };
+        for c in b.corners() {
+            let rel = c.as_dvec3() - s.eye;
+            let t = rel.dot(s.d);
+            if t.partial_cmp(&(DEPTH_EPSILON * rel.abs().max_element())) != Some(Ordering::Greater)
+            {
+                return None;
+            }
+            let (x, y) = (rel.dot(s.r) / t, rel.y / t);
+            (f.x_lo, f.x_hi) = (f.x_lo.min(x), f.x_hi.max(x));
+            (f.y_lo, f.y_hi) = (f.y_lo.min(y), f.y_hi.max(y));
+        }
+        Some(f)
+    }
+
+    #[test]
+    fn a_frame_from_the_footprint_is_the_frame_of_all_eight_corners() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut framed = 0;
+        for _ in 0..5000 {
+            let a = next() * std::f64::consts::TAU;
+            let d = DVec3::new(a.cos(), 0.0, a.sin());
+            let sweep = Sweep {
+                eye: DVec3::new(next(), next(), next()) * 200.0,
+                d,
+                r: DVec3::new(-d.z, 0.0, d.x),
+                clamped: true,
+                x0: -1.0,
+                x1: 1.0,
+                occludes: true,
+            };
+            let c = Vec3::new(next() as f32, next() as f32, next() as f32) * 400.0;
+            let h = Vec3::new(next() as f32, next() as f32, next() as f32).abs() * 60.0;
+            let b = Aabb::new(c - h, c + h);
+            let (got, want) = (sweep.frame(&b), frame_of_corners(&sweep, &b));
+            assert_eq!(got.is_some(), want.is_some(), "{b:?} from {:?}", sweep.eye);
+            if let (Some(g), Some(w)) = (got, want) {
+                framed += 1;
+                for (g, w) in [
+                    (g.x_lo, w.x_lo),
+                    (g.x_hi, w.x_hi),
+                    (g.y_lo, w.y_lo),
+                    (g.y_hi, w.y_hi),
+                ] {
+                    assert!(g == w, "{g} != {w} for {b:?}");
+                }
+            }
+        }
+        assert!(
+            framed > 1000,
+            "only {framed} boxes were in front of the eye"
+        );
+    }
 }
