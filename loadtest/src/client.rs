@@ -42,6 +42,8 @@ pub struct Plan {
     pub mode: Mode,
     /// Frames a second per user (open loop), or `None` (closed loop).
     pub rate: Option<f64>,
+    /// Open loop: requests a user has in flight at most.
+    pub max_in_flight: usize,
     /// Path kind.
     pub walk: WalkKind,
     /// Metres per frame.
@@ -220,25 +222,38 @@ async fn http_user(
         ),
     };
     let held = Arc::new(Mutex::new(Held::default()));
+    // Open loop: at most `max_in_flight` requests (connections) per user;
+    // later frames wait their turn, as a browser queues past its
+    // connections per host, and their latency still counts from when they
+    // were due. Unbounded, a stall made each late frame open a connection
+    // of its own (thousands), and the server drowned in handshakes.
+    let slots = Arc::new(tokio::sync::Semaphore::new(plan.max_in_flight));
     let start = Instant::now();
     let mut in_flight = Vec::new();
     for k in 0.. {
         let Some(due) = due(plan, start, k).await else {
             break;
         };
-        let held_frame = held.lock().unwrap().frame;
-        let body = match held_frame {
-            Some(b) if sid.is_some() => view(walk.next_pose(), &format!(r#","base":{b}"#)),
-            _ => view(walk.next_pose(), &method),
-        };
-        let sent = body.len();
-        let request = http
-            .post(url.clone())
-            .header("accept", binary::CONTENT_TYPE)
-            .header("content-type", "application/json")
-            .body(body);
-        let (held, rec, session) = (held.clone(), rec.clone(), sid.is_some());
+        let pose = walk.next_pose();
+        let (http, url, method) = (http.clone(), url.clone(), method.clone());
+        let (held, rec, slots) = (held.clone(), rec.clone(), slots.clone());
+        let session = sid.is_some();
         let exchange = async move {
+            let Ok(_slot) = slots.acquire_owned().await else {
+                return;
+            };
+            // The base is read when the frame is sent, not when it was due.
+            let held_frame = held.lock().unwrap().frame;
+            let body = match held_frame {
+                Some(b) if session => view(pose, &format!(r#","base":{b}"#)),
+                _ => view(pose, &method),
+            };
+            let sent = body.len();
+            let request = http
+                .post(url)
+                .header("accept", binary::CONTENT_TYPE)
+                .header("content-type", "application/json")
+                .body(body);
             let answer = match request.send().await {
                 Ok(res) if res.status().is_success() => res.bytes().await.map_err(|_| "read"),
                 Ok(res) => Err(status_kind(res.status().as_u16())),

@@ -51,6 +51,10 @@ struct Args {
     /// it each user sends as fast as answers come (closed loop).
     #[arg(long)]
     rate: Option<f64>,
+    /// With --rate: requests (so connections) a user has in flight at
+    /// most; later frames queue in the user and count their wait.
+    #[arg(long, default_value_t = 4)]
+    max_in_flight: usize,
     /// How frames are asked for.
     #[arg(long, value_enum, default_value_t = Mode::Session)]
     mode: Mode,
@@ -70,6 +74,9 @@ fn main() -> anyhow::Result<()> {
     let positive = |v: f64| v.is_finite() && v > 0.0;
     if args.users == 0 || !positive(args.duration) || !positive(args.step) {
         bail!("--users, --duration and --step must be > 0");
+    }
+    if args.max_in_flight == 0 {
+        bail!("--max-in-flight must be at least 1");
     }
     if args.rate.is_some_and(|r| !positive(r)) {
         bail!("--rate must be a number of frames per second > 0");
@@ -120,6 +127,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
         options,
         mode: args.mode,
         rate: args.rate,
+        max_in_flight: args.max_in_flight,
         walk: args.walk,
         step: args.step,
         bounds,
@@ -164,7 +172,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
     let config = serde_json::json!({
         "target": target, "scene": args.scene, "users": args.users,
         "duration": args.duration, "method": args.method, "rate": args.rate,
-        "mode": args.mode, "walk": args.walk, "step": args.step,
+        "max_in_flight": args.max_in_flight, "mode": args.mode, "walk": args.walk, "step": args.step,
     });
     let report = recorder.report(start.elapsed(), config);
     print!("{}", report.table());

@@ -6,6 +6,7 @@
 use std::path::Path;
 use std::process::Command;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use axum::Json;
@@ -150,6 +151,18 @@ fn errors_are_counted_by_kind() {
     assert!(String::from_utf8_lossy(&status.stderr).contains("no scene 'nowhere'"));
 }
 
+/// A server listing one scene, `slow`, to which tests add its routes.
+fn slow_scene() -> axum::Router {
+    axum::Router::new().route(
+        "/scenes",
+        get(|| async {
+            Json(json!([{"id": "slow", "objects": 1, "triangles": 2,
+                "bounds": {"min": [0, 0, 0], "max": [10, 1, 10]},
+                "up": [0, 1, 0], "methods": ["frustum"], "unsupported": {}}]))
+        }),
+    )
+}
+
 /// A server that answers one request at a time, each after 100 ms: 5
 /// frames a second offered to a server that serves 10 a second at most is
 /// fine, 20 a second is not. Closed loop would hide it (each user waits,
@@ -169,17 +182,7 @@ fn open_loop_latency_counts_from_the_schedule() {
             }
         }
     };
-    let router = axum::Router::new()
-        .route(
-            "/scenes",
-            get(|| async {
-                Json(json!([{"id": "slow", "objects": 1, "triangles": 2,
-                    "bounds": {"min": [0, 0, 0], "max": [10, 1, 10]},
-                    "up": [0, 1, 0], "methods": ["frustum"], "unsupported": {}}]))
-            }),
-        )
-        .route("/scenes/slow/visible", post(slow));
-    let target = serve(router);
+    let target = serve(slow_scene().route("/scenes/slow/visible", post(slow)));
     let run = |rate: Option<&str>| {
         let mut args = vec![
             "--target",
@@ -213,4 +216,57 @@ fn open_loop_latency_counts_from_the_schedule() {
     // 60 frames due in 3 s, served at 10/s: the last waits ~3 s.
     assert!(p99(&over) > 1500.0, "open loop hid the queue: {over}");
     assert_eq!(over["errors"], 0);
+}
+
+/// Open loop keeps at most `--max-in-flight` requests per user in flight
+/// (a stall must not open a connection per late frame): a server that
+/// answers in 50 ms never sees more at once, and the frames that queued
+/// in the users show their wait in the latency.
+#[test]
+fn open_loop_bounds_the_requests_in_flight() {
+    let (now, most) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+    let slow = {
+        let (now, most) = (now.clone(), most.clone());
+        move || {
+            let (now, most) = (now.clone(), most.clone());
+            async move {
+                most.fetch_max(now.fetch_add(1, Ordering::SeqCst) + 1, Ordering::SeqCst);
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                now.fetch_sub(1, Ordering::SeqCst);
+                axum::body::Bytes::from_static(&[b'V', 0])
+            }
+        }
+    };
+    let target = serve(slow_scene().route("/scenes/slow/visible", post(slow)));
+    let run = |cap: &str| {
+        loadtest(&[
+            "--target",
+            &target,
+            "--scene",
+            "slow",
+            "--users",
+            "2",
+            "--duration",
+            "1.5",
+            "--mode",
+            "stateless",
+            "--rate",
+            "100",
+            "--max-in-flight",
+            cap,
+        ])
+    };
+    // 150 frames due per user, answered 40 a second: a queue of seconds.
+    let capped = run("2");
+    let seen = most.swap(0, Ordering::SeqCst);
+    assert!(
+        seen <= 4,
+        "2 users x 2 in flight, the server saw {seen} at once"
+    );
+    assert!(capped["p99_ms"].as_f64().unwrap() > 1000.0, "{capped}");
+    assert_eq!(capped["errors"], 0);
+    assert_eq!(capped["config"]["max_in_flight"], 2);
+    run("16");
+    let seen = most.load(Ordering::SeqCst);
+    assert!(seen > 4, "a wider cap was not used: {seen} at once");
 }
