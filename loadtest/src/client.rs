@@ -156,9 +156,16 @@ pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recor
             }
         },
     };
+    // Open loop: users keep the same rate at different phases, spread by
+    // the golden ratio, as independent clients are; in step, all of them
+    // would arrive in one burst per period.
+    let phase = plan
+        .rate
+        .map_or(0.0, |r| (f64::from(u) * 0.618_033_988_75).fract() / r);
+    let start = Instant::now() + Duration::from_secs_f64(phase);
     match (plan.mode, &sid) {
-        (Mode::Ws, Some(sid)) => ws_user(&plan, sid, walk, &rec).await,
-        _ => http_user(&plan, sid.as_deref(), walk, &http, &rec).await,
+        (Mode::Ws, Some(sid)) => ws_user(&plan, sid, walk, start, &rec).await,
+        _ => http_user(&plan, sid.as_deref(), walk, start, &http, &rec).await,
     }
     if let Some(sid) = sid {
         let _ = http
@@ -201,6 +208,7 @@ async fn http_user(
     plan: &Arc<Plan>,
     sid: Option<&str>,
     mut walk: Walk,
+    start: Instant,
     http: &reqwest::Client,
     rec: &Arc<Recorder>,
 ) {
@@ -228,7 +236,6 @@ async fn http_user(
     // were due. Unbounded, a stall made each late frame open a connection
     // of its own (thousands), and the server drowned in handshakes.
     let slots = Arc::new(tokio::sync::Semaphore::new(plan.max_in_flight));
-    let start = Instant::now();
     let mut in_flight = Vec::new();
     for k in 0.. {
         let Some(due) = due(plan, start, k).await else {
@@ -296,7 +303,7 @@ fn check(bytes: &[u8], session: bool, held: &Mutex<Held>) -> Result<(), &'static
     }
 }
 
-async fn ws_user(plan: &Arc<Plan>, sid: &str, mut walk: Walk, rec: &Arc<Recorder>) {
+async fn ws_user(plan: &Arc<Plan>, sid: &str, mut walk: Walk, start: Instant, rec: &Arc<Recorder>) {
     let url = format!(
         "{}/sessions/{sid}/ws?encoding=x-pvs",
         plan.target.replacen("http", "ws", 1)
@@ -340,7 +347,6 @@ async fn ws_user(plan: &Arc<Plan>, sid: &str, mut walk: Walk, rec: &Arc<Recorder
             }
         })
     };
-    let start = Instant::now();
     for k in 0.. {
         let Some(due) = due(plan, start, k).await else {
             break;

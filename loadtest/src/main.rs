@@ -90,7 +90,11 @@ fn main() -> anyhow::Result<()> {
 async fn run(args: Args) -> anyhow::Result<()> {
     let target = args.target.trim_end_matches('/').to_string();
     let http = reqwest::Client::builder()
-        .pool_max_idle_per_host(args.users as usize * 2)
+        // Room to keep every connection a user may have open (one per
+        // request in flight): a pool that closes the extras after a burst
+        // reopens them at the next, and the closed ones wait out TIME_WAIT
+        // until the machine runs out of ports.
+        .pool_max_idle_per_host(args.users as usize * args.max_in_flight.max(2))
         .timeout(Duration::from_secs(30))
         // pvsd never redirects; following redirects costs every request.
         .redirect(reqwest::redirect::Policy::none())
