@@ -124,18 +124,15 @@ impl Plane {
 
 #[cfg(test)]
 mod tests {
+    use rand::{Rng, SeedableRng};
+
     use super::*;
 
     #[test]
     fn a_box_range_is_the_range_of_its_eight_corners_bit_for_bit() {
         // Awkward magnitudes, so rounding differs from corner to corner.
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut next = || rng.random_range(-0.5..0.5);
         for _ in 0..2000 {
             let n = DVec3::new(next(), next(), next()) * 3.0;
             let Some(plane) = Plane::from_point_normal(DVec3::new(next(), next(), next()) * 1e6, n)

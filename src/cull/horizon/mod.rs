@@ -560,6 +560,7 @@ fn area_bound(
 #[cfg(test)]
 mod tests {
     use glam::Vec3;
+    use rand::{Rng, SeedableRng};
 
     use super::*;
 
@@ -587,13 +588,8 @@ mod tests {
 
     #[test]
     fn a_frame_from_the_footprint_is_the_frame_of_all_eight_corners() {
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut next = || rng.random_range(-0.5..0.5);
         let mut framed = 0;
         for _ in 0..5000 {
             let a = next() * std::f64::consts::TAU;
