@@ -69,7 +69,7 @@ struct Frames {
     kept: VecDeque<(u64, IdSet)>,
     /// This frame's set, while it is culled and answered.
     visible: VisibleSet,
-    /// The last frame's set (the newest in `kept`), decoded: most clients
+    /// The last frame's set (the newest in `kept`) as culled: most clients
     /// hold it, and diffing against it needs no decoding.
     previous: VisibleSet,
     /// An older base, decoded.
@@ -132,8 +132,6 @@ impl Session {
             .map(|u| u.moved(&view.camera, &self.scene.scene().origin));
         let work = move || {
             let f = &mut *frames;
-            // The last frame's set becomes `previous`; its buffers take this one.
-            std::mem::swap(&mut f.visible, &mut f.previous);
             let boxes: Vec<_> = others.iter().flatten().map(|(_, b)| *b).collect();
             let stats = method.cull_dynamic(
                 &view,
@@ -205,6 +203,10 @@ impl Frames {
         if self.kept.len() > KEEP_FRAMES {
             self.kept.pop_front();
         }
+        // This set is the next frame's `previous`; the next cull reuses the
+        // old one's buffers. Swapped only once the frame is kept, so a cull
+        // that never finished cannot leave `previous` out of step.
+        std::mem::swap(&mut self.visible, &mut self.previous);
         out
     }
 
