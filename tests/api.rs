@@ -129,6 +129,9 @@ async fn visible_matches_the_library() {
         .unwrap();
     let res = app(s.clone()).oneshot(req).await.unwrap();
     assert_eq!(res.headers()["content-type"], "application/json");
+    let bytes = res.into_body().collect().await.unwrap().to_bytes();
+    let again: VisibleResponse = serde_json::from_slice(&bytes).unwrap();
+    assert_eq!(again.visible, got.visible);
 }
 
 /// Each bad request: its status, its code, a part of its message.

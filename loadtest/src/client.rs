@@ -289,6 +289,7 @@ fn status_kind(status: u16) -> &'static str {
         404 => "http_404",
         410 => "http_410",
         400..=499 => "http_4xx",
+        300..=399 => "http_3xx",
         503 => "http_503",
         _ => "http_5xx",
     }
@@ -385,14 +386,19 @@ mod tests {
         let mut held = Held::default();
         held.apply(&frame(1, None, &[3, 70, 200], &[])).unwrap();
         held.apply(&frame(2, Some(1), &[4], &[70])).unwrap();
+        // A full frame starts over, whatever was held: 3 may come again.
+        held.apply(&frame(3, None, &[3, 9], &[])).unwrap();
         let ids: Vec<u32> = (0..256).filter(|&id| held.remove(id)).collect();
-        assert_eq!(ids, [3, 4, 200]);
-        // Emptied above: a full frame starts over, whatever was held.
-        held.apply(&frame(3, None, &[9], &[])).unwrap();
+        assert_eq!(ids, [3, 9]);
+        held.apply(&frame(4, None, &[9], &[])).unwrap();
         assert_eq!(
-            held.apply(&frame(4, Some(3), &[], &[10])),
+            held.apply(&frame(5, Some(4), &[], &[10])),
             Err("delta_removes_unheld")
         );
+        // A newer frame made against one already replaced (open loop):
+        // skipped, neither applied nor an error.
+        assert_eq!(held.apply(&frame(6, Some(2), &[9], &[])), Ok(()));
+        assert!(held.remove(9) && !held.remove(9));
         let mut held = Held::default();
         held.apply(&frame(1, None, &[9], &[])).unwrap();
         assert_eq!(

@@ -256,7 +256,8 @@ fn open_loop_bounds_the_requests_in_flight() {
             cap,
         ])
     };
-    // 150 frames due per user, answered 40 a second: a queue of seconds.
+    // 150 frames due per user, answered 40 a second each (2 slots, 50 ms):
+    // a queue of seconds.
     let capped = run("2");
     let seen = most.swap(0, Ordering::SeqCst);
     assert!(

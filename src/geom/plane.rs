@@ -93,9 +93,9 @@ impl Plane {
     /// The smallest and largest signed distance of the box's eight corners,
     /// from two of them (n-vertex, p-vertex). Exactly what evaluating all
     /// eight with [`Plane::signed_distance`] and taking the extremes gives,
-    /// rounding included: each product and sum of the dot product is
-    /// monotone in each coordinate (see [`Plane::classify`]). An empty box
-    /// has no corners: `(+inf, -inf)`.
+    /// rounding included (up to the sign of a zero): each product and sum
+    /// of the dot product is monotone in each coordinate (see
+    /// [`Plane::classify`]). An empty box has no corners: `(+inf, -inf)`.
     pub fn box_range(&self, b: &Aabb) -> (f64, f64) {
         if b.is_empty() {
             return (f64::INFINITY, f64::NEG_INFINITY);
@@ -129,7 +129,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_box_range_is_the_range_of_its_eight_corners_bit_for_bit() {
+    fn a_box_range_is_the_range_of_its_eight_corners_exactly() {
         // Awkward magnitudes, so rounding differs from corner to corner.
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let mut next = || rng.random_range(-0.5..0.5);

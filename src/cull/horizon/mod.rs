@@ -142,6 +142,8 @@ struct Event {
     depth: f64,
     kind: Kind,
     index: u32,
+    /// A cell's planes still to test (its parent was inside the others);
+    /// unused for the rest: objects are frustum-tested when pushed.
     planes: PlaneMask,
 }
 
@@ -237,7 +239,8 @@ impl Sweep {
         // screen x are those of its footprint corner whatever its height:
         // four corners give them, and the box's bottom and top give y from
         // the nearest and farthest depth (y / t is monotone in t, rounding
-        // included). The same values as projecting all eight corners.
+        // included). The same values as projecting all eight corners (up to
+        // the sign of a zero).
         let tall = lo.y.abs().max(hi.y.abs());
         let (mut t_near, mut t_far) = (f64::INFINITY, f64::NEG_INFINITY);
         let (mut x_lo, mut x_hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -430,7 +433,7 @@ impl CullMethod for HorizonCulling {
                             depth: sweep.near_depth(b),
                             kind: Kind::Object,
                             index: o,
-                            planes,
+                            planes: 0,
                         });
                     }
                     for &c in cell.children.iter().filter(|&&c| c != 0) {
