@@ -125,7 +125,7 @@ pub(crate) fn cull_subtree(
             (Side::Intersecting, NodeKind::Leaf) => {
                 for &id in tree.node_refs(node) {
                     if out.contains(id) {
-                        // Accepted through another leaf (the ground is in all).
+                        // Accepted through another leaf (a ground is in most).
                         continue;
                     }
                     // Only the part inside this leaf's cell: the rest of the
