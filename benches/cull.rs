@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::cull::{CullJob, MethodSpec, SceneMethods, View};
 use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
 use pvsd::scene::{Scene, load_slice};
@@ -28,14 +28,18 @@ fn bench_walk(c: &mut Criterion, group: &str, scene: Arc<Scene>, kind: WalkKind,
     let mut group = c.benchmark_group(group);
     for spec in specs {
         let spec: MethodSpec = spec.parse().unwrap();
-        let (method, mut cache) = methods.prepare_client(&spec).unwrap();
-        let mut out = VisibleSet::new();
+        let (method, cache) = methods.prepare_client(&spec).unwrap();
+        // The job carries the cache and buffers from frame to frame.
+        let mut job = Some(CullJob::new(views[0], cache));
         let mut frame = 0;
         group.bench_function(spec.to_string(), |b| {
             b.iter(|| {
-                let stats = method.cull(&views[frame % views.len()], &mut cache, &mut out);
+                let mut next = job.take().expect("the job is back after each frame");
+                next.view = views[frame % views.len()];
+                let culled = methods.cull_blocking(&method, next).unwrap();
                 frame += 1;
-                stats.visible
+                job = Some(culled.job);
+                culled.stats.visible
             })
         });
     }

@@ -10,7 +10,7 @@ use anyhow::{Context, bail};
 use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
-use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::cull::{MethodSpec, Registry, SceneMethods, View, VisibleSet};
 use pvsd::eval::{EvalParams, WalkParams};
 use pvsd::geom::Camera;
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
@@ -259,7 +259,12 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
             .map(|p| load_scene(p))
             .collect::<anyhow::Result<Vec<_>>>()?
     };
-    let state = AppState::new(scenes, config.limits())?;
+    let state = AppState::with_methods(
+        scenes,
+        config.limits(),
+        &Registry::standard(),
+        &config.method_context(),
+    )?;
     let addr = args
         .addr
         .or(config.addr)

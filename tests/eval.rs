@@ -9,8 +9,8 @@ use std::sync::Arc;
 use common::{city_scene, office_scene, shared_scene};
 use glam::{DVec3, Vec3};
 use pvsd::cull::{
-    CullCounters, CullMethod, MethodError, MethodOptions, MethodSpec, SceneMethods, View,
-    VisibleSet,
+    CullCounters, CullError, CullMethod, MethodError, MethodOptions, MethodSpec, Occludees,
+    SceneMethods, View, VisibleSet,
 };
 use pvsd::eval::{Contender, EvalParams, WalkKind, WalkParams, evaluate, run, walk};
 use pvsd::geom::Camera;
@@ -32,12 +32,18 @@ impl CullMethod for Fixed {
     fn is_conservative(&self, _: &()) -> bool {
         false
     }
-    fn cull(&self, _: &View, _: &mut (), out: &mut VisibleSet) -> CullCounters {
+    fn cull(
+        &self,
+        _: &View,
+        _: &mut (),
+        out: &mut VisibleSet,
+        _: &mut Occludees,
+    ) -> Result<CullCounters, CullError> {
         out.extend_from_slice(&self.0);
-        CullCounters {
+        Ok(CullCounters {
             nodes_tested: 0,
             in_frustum: pvsd::cull::InFrustum::Counted(4),
-        }
+        })
     }
 }
 

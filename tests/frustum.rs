@@ -39,13 +39,13 @@ fn check_view(methods: &SceneMethods, cam: Camera, per_object: usize, seed: u64)
     let view = View::new(cam, scene).unwrap();
     assert_eq!(
         got,
-        FrustumCulling::reference(scene, &view.frustum),
+        FrustumCulling::reference(scene, view.frustum()),
         "hierarchical != brute force for {cam:?}"
     );
     let basis = cam.basis().unwrap();
     let clip_from_local =
         DMat4::perspective_rh(cam.fov_y_deg.to_radians(), cam.aspect, cam.near, cam.far)
-            * DMat4::look_to_rh(view.eye, basis.forward, basis.up);
+            * DMat4::look_to_rh(view.eye(), basis.forward, basis.up);
     // Stay clear of the boundary by a sliver, so rounding cannot make a point
     // that is outside look inside.
     let inside = |p: DVec3| {

@@ -13,7 +13,7 @@ use common::server::{Held, Server, view_json, xpvs};
 use common::{city_scene, fetch};
 use futures_util::{SinkExt, StreamExt};
 use http_body_util::BodyExt;
-use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::cull::{CullJob, MethodSpec, SceneMethods, View};
 use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::geom::Camera;
 use pvsd::scene::Scene;
@@ -210,10 +210,10 @@ async fn every_method_rebuilds_its_own_answers_by_deltas() {
     let c = reqwest::Client::new();
     for name in names {
         let spec: MethodSpec = name.parse().unwrap();
-        let (method, mut cache) = library.prepare_client(&spec).unwrap();
+        let (method, cache) = library.prepare_client(&spec).unwrap();
         let sid = new_session(&c, &s, json!({"scene": "city", "method": name})).await;
         let mut held = Held::default();
-        let mut out = VisibleSet::new();
+        let mut job = Some(CullJob::new(View::new(cams[0], &scene).unwrap(), cache));
         for (i, cam) in cams.iter().enumerate() {
             let f: FrameResponse = fetch(
                 c.post(s.url(&format!("/sessions/{sid}/frames")))
@@ -221,8 +221,16 @@ async fn every_method_rebuilds_its_own_answers_by_deltas() {
             )
             .await;
             held.apply(&f);
-            method.cull(&View::new(*cam, &scene).unwrap(), &mut cache, &mut out);
-            assert_eq!(held.sorted(), out.ids(), "{name} frame {}", i + 1);
+            let mut next = job.take().unwrap();
+            next.view = View::new(*cam, &scene).unwrap();
+            let culled = library.cull(&method, next).await.unwrap();
+            assert_eq!(
+                held.sorted(),
+                culled.job.out.ids(),
+                "{name} frame {}",
+                i + 1
+            );
+            job = Some(culled.job);
             if matches!(name, "frustum" | "horizon") {
                 assert_eq!(held.sorted(), stateless(&c, &s, cam, name).await, "{name}");
             }

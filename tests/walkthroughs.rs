@@ -12,7 +12,7 @@ use std::time::Duration;
 use common::server::{Server, view_json};
 use common::{CHECK_VIEWPORT, city_scene, cuboid, fetch};
 use glam::{DVec3, Vec3};
-use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::cull::{CullJob, MethodSpec, SceneMethods, View};
 use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::geom::Camera;
 use pvsd::scene::{Scene, SceneBuilder};
@@ -277,12 +277,18 @@ fn avatars_against_truth(offset: [f32; 3]) {
     let library = SceneMethods::prepare(scene.clone());
     for name in library.names() {
         let spec: MethodSpec = name.parse().unwrap();
-        let (method, mut cache) = library.prepare_client(&spec).unwrap();
-        let (mut out, mut visible) = (VisibleSet::new(), Vec::new());
+        let (method, cache) = library.prepare_client(&spec).unwrap();
+        let mut job = Some(CullJob::new(View::new(cams[0], &scene).unwrap(), cache));
         let (mut shown, mut culled_in_frustum) = (0, 0);
         for (f, cam) in cams.iter().enumerate() {
             let view = View::new(*cam, &scene).unwrap();
-            method.cull_dynamic(&view, &mut cache, &mut out, &boxes, &mut visible);
+            let mut next = job.take().unwrap();
+            next.view = view;
+            next.occludees.set_boxes(boxes.iter().copied());
+            let culled = library.cull_blocking(&method, next).unwrap();
+            assert!(culled.stats.fallback.is_none(), "{name} fell back");
+            let visible = culled.job.occludees.visible().to_vec();
+            job = Some(culled.job);
             let truth = Truth::render(&with_avatars, cam).unwrap();
             for id in truth.visible().into_iter().filter(|&id| id >= first) {
                 let i = (id - first) as usize;
@@ -296,7 +302,7 @@ fn avatars_against_truth(offset: [f32; 3]) {
             culled_in_frustum += boxes
                 .iter()
                 .zip(&visible)
-                .filter(|(b, v)| !**v && view.frustum.intersects(b))
+                .filter(|(b, v)| !**v && view.frustum().intersects(b))
                 .count();
         }
         eprintln!("{name}: {shown} avatars shown, {culled_in_frustum} culled inside the frustum");

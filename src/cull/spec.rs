@@ -5,14 +5,16 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::str::FromStr;
 
-/// Every method name of DESIGN's contract, whether or not a scene supports it.
-pub const METHOD_NAMES: [&str; 7] = [
+/// Every method name of DESIGN's contract, whether or not a scene supports
+/// it; the standard registry has an entry for each but `auto`.
+pub const METHOD_NAMES: [&str; 8] = [
     "frustum",
     "occlusion_tree",
     "supporting_planes",
     "horizon",
     "ddo",
     "gpu",
+    "raster",
     "auto",
 ];
 
@@ -133,22 +135,62 @@ pub struct OptionReader<'a> {
 }
 
 impl OptionReader<'_> {
-    /// The value of `key` parsed as `T`, or `default` when absent.
-    pub fn get<T: FromStr>(
-        &self,
-        key: &'static str,
-        default: T,
-        expected: &str,
-    ) -> Result<T, MethodError> {
+    /// The value of a numeric option, or its default when absent; a value
+    /// that does not parse or lies outside the range is refused, naming
+    /// the range.
+    pub fn ranged<T>(&self, option: &Ranged<T>) -> Result<T, MethodError>
+    where
+        T: FromStr + PartialOrd + fmt::Display + Copy,
+    {
+        debug_assert!(
+            self.known.contains(&option.key),
+            "{} is not declared",
+            option.key
+        );
+        match self.options.0.get(option.key) {
+            None => Ok(option.default),
+            Some(text) => text
+                .parse::<T>()
+                .ok()
+                .filter(|v| option.min <= *v && *v <= option.max)
+                .ok_or_else(|| self.invalid(option.key, text, option.expected())),
+        }
+    }
+
+    /// The value of a `true`/`false` option, or `default` when absent.
+    pub fn flag(&self, key: &'static str, default: bool) -> Result<bool, MethodError> {
         debug_assert!(self.known.contains(&key), "{key} is not declared");
         match self.options.0.get(key) {
             None => Ok(default),
-            Some(v) => v.parse().map_err(|_| MethodError::InvalidOption {
-                method: self.method.into(),
-                option: key.into(),
-                value: v.clone(),
-                expected: expected.into(),
-            }),
+            Some(text) => text
+                .parse()
+                .map_err(|_| self.invalid(key, text, "true or false".into())),
+        }
+    }
+
+    /// The value of an option that takes one of `choices`; absent, the first.
+    pub fn choice(
+        &self,
+        key: &'static str,
+        choices: &[&'static str],
+    ) -> Result<&'static str, MethodError> {
+        debug_assert!(self.known.contains(&key), "{key} is not declared");
+        match self.options.0.get(key) {
+            None => Ok(choices[0]),
+            Some(text) => choices
+                .iter()
+                .find(|c| **c == text)
+                .copied()
+                .ok_or_else(|| self.invalid(key, text, or_list(choices))),
+        }
+    }
+
+    fn invalid(&self, key: &str, value: &str, expected: String) -> MethodError {
+        MethodError::InvalidOption {
+            method: self.method.into(),
+            option: key.into(),
+            value: value.into(),
+            expected,
         }
     }
 
@@ -175,10 +217,49 @@ impl OptionReader<'_> {
     }
 }
 
+/// A numeric option: its key, default and closed range, defined once for
+/// validation, defaults and error messages alike.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ranged<T> {
+    /// Its key (`k`).
+    pub key: &'static str,
+    /// What kind of number, for messages (`a whole number`).
+    pub noun: &'static str,
+    /// Its value when absent.
+    pub default: T,
+    /// Smallest value accepted.
+    pub min: T,
+    /// Largest value accepted.
+    pub max: T,
+}
+
+impl<T: fmt::Display> Ranged<T> {
+    /// What a value must be: `a whole number from 1 to 1024`.
+    pub fn expected(&self) -> String {
+        format!("{} from {} to {}", self.noun, self.min, self.max)
+    }
+}
+
+/// `a, b or c`.
+fn or_list(choices: &[&str]) -> String {
+    match choices {
+        [] => String::new(),
+        [one] => one.to_string(),
+        [rest @ .., last] => format!("{} or {last}", rest.join(", ")),
+    }
+}
+
 impl MethodSpec {
-    /// A spec with no options.
+    /// A spec with no options. Whether a scene has the method is for
+    /// [`super::SceneMethods::get`] to say; here the name must only look
+    /// like one (lower-case letters, digits, `_`).
     pub fn named(name: &str) -> Result<Self, MethodError> {
-        if !METHOD_NAMES.contains(&name) {
+        let looks_like_a_name = !name.is_empty()
+            && name.len() <= 64
+            && name
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_');
+        if !looks_like_a_name {
             return Err(MethodError::Unknown { name: name.into() });
         }
         Ok(MethodSpec {
@@ -240,8 +321,8 @@ mod tests {
 
     #[test]
     fn refusals_name_the_problem() {
-        let e = "octree".parse::<MethodSpec>().unwrap_err();
-        assert!(e.to_string().starts_with("unknown method 'octree'"), "{e}");
+        let e = "Octree!".parse::<MethodSpec>().unwrap_err();
+        assert!(e.to_string().starts_with("unknown method 'Octree!'"), "{e}");
         let e = "frustum:k".parse::<MethodSpec>().unwrap_err();
         assert!(e.to_string().contains("'k' is not key=value"), "{e}");
         let s: MethodSpec = "frustum:k=3".parse().unwrap();
@@ -252,22 +333,74 @@ mod tests {
         );
     }
 
+    const K: Ranged<u32> = Ranged {
+        key: "k",
+        noun: "a whole number",
+        default: 8,
+        min: 1,
+        max: 64,
+    };
+
     #[test]
-    fn reader_parses_values() {
-        let s: MethodSpec = "occlusion_tree:k=abc".parse().unwrap();
-        let r = s.options.reader("occlusion_tree", &["k"]);
-        let e = r.get::<u32>("k", 8, "a whole number").unwrap_err();
-        assert_eq!(
-            e.to_string(),
-            "option 'k' of method 'occlusion_tree' must be a whole number, got 'abc'"
+    fn reader_parses_values_within_their_range() {
+        let read = |spec: &str| {
+            let s: MethodSpec = spec.parse().unwrap();
+            s.options.reader("occlusion_tree", &["k"]).ranged(&K)
+        };
+        assert_eq!(read("occlusion_tree"), Ok(8));
+        assert_eq!(read("occlusion_tree:k=64"), Ok(64));
+        for bad in ["abc", "0", "65", "-1"] {
+            let e = read(&format!("occlusion_tree:k={bad}")).unwrap_err();
+            assert_eq!(
+                e.to_string(),
+                format!(
+                    "option 'k' of method 'occlusion_tree' must be a whole number from 1 to 64, got '{bad}'"
+                )
+            );
+        }
+    }
+
+    #[test]
+    fn floats_out_of_range_and_nan_are_refused() {
+        const L: Ranged<f64> = Ranged {
+            key: "lambda",
+            noun: "a distance",
+            default: 100.0,
+            min: 0.001,
+            max: 1e9,
+        };
+        for bad in ["NaN", "inf", "0", "2e9"] {
+            let s: MethodSpec = format!("x:lambda={bad}").parse().unwrap();
+            let e = s.options.reader("x", &["lambda"]).ranged(&L).unwrap_err();
+            assert!(
+                e.to_string()
+                    .contains("a distance from 0.001 to 1000000000"),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn flags_and_choices_name_what_they_take() {
+        let s: MethodSpec = "x:on=yes:variant=abc".parse().unwrap();
+        let r = s.options.reader("x", &["on", "variant"]);
+        assert!(
+            r.flag("on", false)
+                .unwrap_err()
+                .to_string()
+                .contains("true or false")
         );
-        let s: MethodSpec = "occlusion_tree".parse().unwrap();
+        let e = r.choice("variant", &["fme", "fmc", "fse"]).unwrap_err();
+        assert!(
+            e.to_string()
+                .ends_with("must be fme, fmc or fse, got 'abc'"),
+            "{e}"
+        );
+        let none = MethodOptions::new();
         assert_eq!(
-            s.options
-                .reader("occlusion_tree", &["k"])
-                .get::<u32>("k", 8, "n")
-                .unwrap(),
-            8
+            none.reader("x", &["variant"])
+                .choice("variant", &["fme", "fse"]),
+            Ok("fme")
         );
     }
 }

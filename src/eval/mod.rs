@@ -17,9 +17,11 @@ use std::time::Instant;
 pub use report::{EvalReport, MethodReport, write_svg};
 pub use walk::{WalkError, WalkKind, WalkParams, walk};
 
+use crate::cull::dispatch::cull_here;
 use crate::cull::frustum::FrustumCulling;
 use crate::cull::{
-    ClientCache, Culler, MethodError, MethodOptions, MethodSpec, SceneMethods, View, VisibleSet,
+    ClientCache, CullError, CullJob, Culler, MethodError, MethodOptions, MethodSpec, SceneMethods,
+    View, VisibleSet,
 };
 use crate::geom::Camera;
 use crate::scene::Scene;
@@ -54,6 +56,15 @@ pub enum EvalError {
     /// No walkthrough could be made.
     #[error(transparent)]
     Walk(#[from] WalkError),
+    /// A method failed to answer a frame (eval measures the method, not
+    /// the fallback a server would answer with).
+    #[error("frame {frame}: {error}")]
+    Cull {
+        /// The frame.
+        frame: usize,
+        /// The method's error.
+        error: CullError,
+    },
     /// A camera handed to [`run`] is unusable.
     #[error("frame {frame}: {problem}")]
     Camera {
@@ -71,7 +82,10 @@ pub struct Contender {
     /// Its options, echoed in the report.
     pub options: MethodOptions,
     method: Arc<dyn Culler>,
-    cache: ClientCache,
+    /// Its cache, carried from frame to frame (`None` only while it culls).
+    cache: Option<ClientCache>,
+    /// Whether the method is conservative with these options.
+    conservative: bool,
 }
 
 impl Contender {
@@ -85,20 +99,16 @@ impl Contender {
         Ok(Contender {
             label: label.into(),
             options,
+            conservative: cache.is_conservative(),
             method,
-            cache,
+            cache: Some(cache),
         })
     }
 
     /// A contender for a method of `methods` named by `spec`.
     pub fn from_spec(methods: &SceneMethods, spec: &MethodSpec) -> Result<Self, MethodError> {
-        let (method, cache) = methods.prepare_client(spec)?;
-        Ok(Contender {
-            label: spec.to_string(),
-            options: spec.options.clone(),
-            method,
-            cache,
-        })
+        let method = methods.get(&spec.name)?.clone();
+        Contender::new(spec.to_string(), method, spec.options.clone())
     }
 }
 
@@ -166,9 +176,19 @@ pub fn run(
         pixels += truth.pixel_count();
         // The in-frustum set is the walk's, not a method's: counted once,
         // exactly, outside any method's timing.
-        let in_frustum = FrustumCulling::reference(scene, &view.frustum).len() as u64;
+        let in_frustum = FrustumCulling::reference(scene, view.frustum()).len() as u64;
         for (c, tally) in contenders.iter_mut().zip(&mut tallies) {
-            let stats = c.method.cull(&view, &mut c.cache, &mut out);
+            let cache = c
+                .cache
+                .take()
+                .expect("a contender's cache is back after each frame");
+            let mut job = CullJob::new(view, cache);
+            job.out = std::mem::take(&mut out);
+            let culled =
+                cull_here(&c.method, job).map_err(|error| EvalError::Cull { frame, error })?;
+            let stats = culled.stats;
+            c.cache = Some(culled.job.cache);
+            out = culled.job.out;
             let ids = out.ids();
             tally.cull_us.push(stats.cull_us);
             tally.pvs += ids.len() as u64;
@@ -210,7 +230,7 @@ pub fn run(
                     .iter()
                     .map(|(k, v)| (k.to_string(), v.to_string()))
                     .collect(),
-                conservative: c.cache.is_conservative(),
+                conservative: c.conservative,
                 median_cull_us: percentile(&t.cull_us, 0.5),
                 p99_cull_us: percentile(&t.cull_us, 0.99),
                 mean_pvs,

@@ -99,6 +99,12 @@ impl Aabb {
         (self.min + self.max) * 0.5
     }
 
+    /// Euclidean distance from `p` to the box, in `f64`; 0 inside it.
+    pub fn distance_to(&self, p: DVec3) -> f64 {
+        let (lo, hi) = (self.min.as_dvec3(), self.max.as_dvec3());
+        (lo - p).max(p - hi).max(DVec3::ZERO).length()
+    }
+
     /// The side lengths (negative for an empty box).
     pub fn extent(&self) -> Vec3 {
         self.max - self.min

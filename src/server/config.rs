@@ -9,6 +9,8 @@
 //! max_sessions = 100000          # past it, the least recently used is evicted
 //! session_cache_bytes = 268435456  # sessions' caches and kept frames, in all
 //! max_walkthroughs = 10000
+//! bake_dir = "bakes"             # baked data cached between runs
+//! disabled_methods = ["supporting_planes"]  # listed as unsupported
 //! ```
 //! Every key is optional; flags given on the command line win over the file.
 
@@ -19,6 +21,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::{Limits, SessionLimits};
+use crate::cull::{MethodContext, Registry};
 
 /// The file's contents.
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
@@ -41,6 +44,11 @@ pub struct ServeConfig {
     pub session_cache_bytes: Option<u64>,
     /// Most live walkthroughs.
     pub max_walkthroughs: Option<u64>,
+    /// Where baked data is cached between runs; relative to the config file.
+    pub bake_dir: Option<PathBuf>,
+    /// Methods the operator turns off (`/scenes` lists them as unsupported).
+    #[serde(default)]
+    pub disabled_methods: Vec<String>,
 }
 
 /// A config file that could not be used.
@@ -63,10 +71,24 @@ impl ServeConfig {
         let text = std::fs::read_to_string(path).map_err(|e| fail(format!("cannot read: {e}")))?;
         let mut cfg: ServeConfig = toml::from_str(&text).map_err(|e| fail(e.to_string()))?;
         let dir = path.parent().unwrap_or(Path::new("."));
-        for s in &mut cfg.scenes {
+        for s in cfg.scenes.iter_mut().chain(&mut cfg.bake_dir) {
             if s.is_relative() {
                 *s = dir.join(&*s);
             }
+        }
+        let registry = Registry::standard();
+        if let Some(m) = cfg.disabled_methods.iter().find(|m| !registry.knows(m)) {
+            let known: Vec<&str> = registry.entries().iter().map(|e| e.name).collect();
+            return Err(fail(format!(
+                "disabled_methods: unknown method '{m}'; known methods: {}",
+                known.join(", ")
+            )));
+        }
+        if cfg.disabled_methods.iter().any(|m| m == "frustum") {
+            return Err(fail(
+                "disabled_methods: frustum cannot be disabled: every other method falls back to it"
+                    .into(),
+            ));
         }
         if cfg.body_limit_bytes == Some(0) {
             return Err(fail("body_limit_bytes must be > 0".into()));
@@ -83,6 +105,15 @@ impl ServeConfig {
             }
         }
         Ok(cfg)
+    }
+
+    /// What the scenes' methods are prepared with.
+    pub fn method_context(&self) -> MethodContext {
+        MethodContext {
+            bake_dir: self.bake_dir.clone(),
+            disabled: self.disabled_methods.clone(),
+            ..MethodContext::default()
+        }
     }
 
     /// The limits it sets, defaults for what it leaves out.
@@ -114,7 +145,8 @@ mod tests {
         let p = dir.path().join("pvsd.toml");
         std::fs::write(
             &p,
-            "addr = \"127.0.0.1:9000\"\nscenes = [\"a.glb\"]\nrequest_timeout_ms = 50\n",
+            "addr = \"127.0.0.1:9000\"\nscenes = [\"a.glb\"]\nrequest_timeout_ms = 50\n\
+             bake_dir = \"bakes\"\ndisabled_methods = [\"horizon\"]\n",
         )
         .unwrap();
         let c = ServeConfig::load(&p).unwrap();
@@ -122,6 +154,9 @@ mod tests {
         assert_eq!(c.scenes, vec![dir.path().join("a.glb")]);
         assert_eq!(c.limits().request_timeout, Duration::from_millis(50));
         assert_eq!(c.limits().body_bytes, Limits::default().body_bytes);
+        let context = c.method_context();
+        assert_eq!(context.bake_dir, Some(dir.path().join("bakes")));
+        assert_eq!(context.disabled, vec!["horizon".to_string()]);
     }
 
     #[test]
@@ -131,6 +166,12 @@ mod tests {
         std::fs::write(&p, "adr = \"x\"\n").unwrap();
         let e = ServeConfig::load(&p).unwrap_err().to_string();
         assert!(e.contains("pvsd.toml") && e.contains("adr"), "{e}");
+        std::fs::write(&p, "disabled_methods = [\"octree\"]\n").unwrap();
+        let e = ServeConfig::load(&p).unwrap_err().to_string();
+        assert!(e.contains("unknown method 'octree'"), "{e}");
+        std::fs::write(&p, "disabled_methods = [\"frustum\"]\n").unwrap();
+        let e = ServeConfig::load(&p).unwrap_err().to_string();
+        assert!(e.contains("frustum cannot be disabled"), "{e}");
         std::fs::write(&p, "body_limit_bytes = 0\n").unwrap();
         assert!(
             ServeConfig::load(&p)

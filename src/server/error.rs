@@ -4,11 +4,11 @@
 //! sent. A bad request never panics and never changes shared state.
 
 use axum::Json;
-use axum::http::StatusCode;
+use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde_json::json;
 
-use crate::cull::MethodError;
+use crate::cull::{CullError, MethodError};
 use crate::geom::CameraError;
 
 /// Everything a request can fail with.
@@ -84,6 +84,14 @@ pub enum ApiError {
         /// The timeout in force.
         ms: u64,
     },
+    /// The method cannot take more work now; come back after the pause.
+    #[error("method '{method}' is busy; retry after {retry_after_s} s")]
+    Busy {
+        /// The method.
+        method: String,
+        /// Seconds to wait (the `Retry-After` header).
+        retry_after_s: u64,
+    },
     /// A bug or an unexpected failure; details go to the log only.
     #[error("internal error")]
     Internal(String),
@@ -92,6 +100,22 @@ pub enum ApiError {
 impl From<CameraError> for ApiError {
     fn from(e: CameraError) -> Self {
         ApiError::InvalidView(e.to_string())
+    }
+}
+
+impl From<CullError> for ApiError {
+    fn from(e: CullError) -> Self {
+        match e {
+            CullError::Busy {
+                method,
+                retry_after,
+            } => ApiError::Busy {
+                method: method.to_string(),
+                // Whole seconds, at least one: what `Retry-After` can say.
+                retry_after_s: retry_after.as_secs_f64().ceil().max(1.0) as u64,
+            },
+            failed @ CullError::Failed { .. } => ApiError::Internal(failed.to_string()),
+        }
     }
 }
 
@@ -125,6 +149,7 @@ impl ApiError {
                 (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed")
             }
             ApiError::Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            ApiError::Busy { .. } => (StatusCode::SERVICE_UNAVAILABLE, "busy"),
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
         }
     }
@@ -146,6 +171,12 @@ impl ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        (self.status_and_code().0, Json(self.body())).into_response()
+        let mut response = (self.status_and_code().0, Json(self.body())).into_response();
+        if let ApiError::Busy { retry_after_s, .. } = self {
+            response
+                .headers_mut()
+                .insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+        }
+        response
     }
 }

@@ -16,6 +16,7 @@ use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
 use prometheus_client::registry::Registry;
 
 use super::state::AppState;
+use crate::cull::CullStats;
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct RouteLabels {
@@ -52,6 +53,8 @@ pub struct Metrics {
     cull: Family<CullLabels, Histogram, fn() -> Histogram>,
     /// Size of answers by scene and culling method, objects.
     visible: Family<CullLabels, Histogram, fn() -> Histogram>,
+    /// Culls a method failed, answered by frustum culling instead.
+    fallbacks: Family<CullLabels, Counter>,
     /// Scenes loaded.
     scenes: Gauge,
     /// Live sessions.
@@ -91,6 +94,7 @@ impl Metrics {
         let visible = Family::<CullLabels, Histogram, fn() -> Histogram>::new_with_constructor(
             size_histogram as fn() -> Histogram,
         );
+        let fallbacks = Family::<CullLabels, Counter>::default();
         let scenes = Gauge::default();
         let sessions = Gauge::default();
         let session_bytes = Gauge::default();
@@ -130,6 +134,11 @@ impl Metrics {
             cull.clone(),
         );
         registry.register("visible_objects", "Objects in an answer", visible.clone());
+        registry.register(
+            "cull_fallbacks",
+            "Culls a method failed, answered by frustum culling instead",
+            fallbacks.clone(),
+        );
         registry.register("scenes", "Scenes loaded", scenes.clone());
         Metrics {
             registry,
@@ -137,6 +146,7 @@ impl Metrics {
             latency,
             cull,
             visible,
+            fallbacks,
             scenes,
             sessions,
             session_bytes,
@@ -168,14 +178,22 @@ impl Metrics {
         self.websockets.inc_by(delta);
     }
 
-    /// Records one cull.
-    pub fn observe_cull(&self, scene: &str, method: &str, seconds: f64, visible: u64) {
+    /// Records one cull: its time and size under the method asked, and a
+    /// fallback when another method answered.
+    pub fn observe_cull(&self, scene: &str, stats: &CullStats) {
         let labels = CullLabels {
             scene: scene.to_string(),
-            method: method.to_string(),
+            method: stats.method.to_string(),
         };
-        self.cull.get_or_create(&labels).observe(seconds);
-        self.visible.get_or_create(&labels).observe(visible as f64);
+        self.cull
+            .get_or_create(&labels)
+            .observe(stats.cull_us * 1e-6);
+        self.visible
+            .get_or_create(&labels)
+            .observe(stats.visible as f64);
+        if stats.fallback.is_some() {
+            self.fallbacks.get_or_create(&labels).inc();
+        }
     }
 
     /// Sets the number of scenes loaded.

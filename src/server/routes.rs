@@ -1,9 +1,8 @@
 //! The handlers, one per route of DESIGN's HTTP API.
 //!
-//! Culling that a method declares cheap (`Culler::is_cheap`: frustum
-//! culling, microseconds) runs on the async worker; anything else runs on
-//! `spawn_blocking`, since past ~100 µs it would stall the worker's other
-//! requests.
+//! Every cull goes through the one dispatch (`SceneMethods::cull`), which
+//! runs it where its method says: inline, on the blocking pool, or on a
+//! device's queue. The handlers know no method's insides.
 
 use std::sync::Arc;
 
@@ -21,7 +20,7 @@ use super::wire::{
     Bounds, FrameResponse, ObjectInfo, SceneInfo, SessionCreated, SessionRequest, UserJoined,
     ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo, method_spec,
 };
-use crate::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use crate::cull::{CullJob, MethodSpec, SceneMethods, View};
 
 /// `GET /healthz`: 200 while the server runs.
 pub async fn healthz() -> &'static str {
@@ -45,7 +44,7 @@ pub async fn scenes(State(state): State<AppState>) -> Json<Vec<SceneInfo>> {
                     unsupported: m
                         .unsupported()
                         .iter()
-                        .map(|(name, why)| (name.to_string(), why.clone()))
+                        .map(|u| (u.method.to_string(), u.reason.clone()))
                         .collect(),
                 }
             })
@@ -101,25 +100,10 @@ pub async fn visible(
     req.check_stateless()?;
     let spec = req.method_spec()?;
     let view = View::new(req.camera(), methods.scene())?;
-    let (method, mut cache) = methods.prepare_client(&spec)?;
-    let mut out = VisibleSet::new();
-    let stats = if method.is_cheap() {
-        method.cull(&view, &mut cache, &mut out)
-    } else {
-        // Hundreds of microseconds: off the async workers, so one heavy
-        // request does not stall the others sharing the worker.
-        let (stats, done) = tokio::task::spawn_blocking(move || {
-            let stats = method.cull(&view, &mut cache, &mut out);
-            (stats, out)
-        })
-        .await
-        .map_err(|e| ApiError::Internal(format!("cull task failed: {e}")))?;
-        out = done;
-        stats
-    };
-    state
-        .metrics()
-        .observe_cull(&id, stats.method, stats.cull_us * 1e-6, stats.visible);
+    let (method, cache) = methods.prepare_client(&spec)?;
+    let culled = methods.cull(&method, CullJob::new(view, cache)).await?;
+    let (out, stats) = (culled.job.out, culled.stats);
+    state.metrics().observe_cull(&id, &stats);
     if wants_binary(&headers) {
         return Ok(binary_body(binary::encode_visible(out.ids())));
     }
@@ -182,13 +166,9 @@ pub async fn answer_frame(
     if let Some(bytes) = answered.resized {
         state.sessions().resized(&session, bytes);
     }
-    let stats = answered.stats;
-    state.metrics().observe_cull(
-        &session.scene.scene().id,
-        stats.method,
-        stats.cull_us * 1e-6,
-        stats.visible,
-    );
+    state
+        .metrics()
+        .observe_cull(&session.scene.scene().id, &answered.stats);
     Ok(answered.frame)
 }
 

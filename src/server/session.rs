@@ -33,7 +33,10 @@ use super::metrics::Metrics;
 use super::state::SessionLimits;
 use super::walkthrough::User;
 use super::wire::FrameResponse;
-use crate::cull::{ClientCache, CullStats, Culler, SceneMethods, View, VisibleSet};
+use crate::cull::{
+    ClientCache, CullJob, CullStats, Culler, MethodOptions, Occludees, SceneMethods, View,
+    VisibleSet,
+};
 
 /// Past frames a session keeps, so a client that lost answers can name an
 /// older base and still get a delta.
@@ -55,6 +58,8 @@ pub struct Session {
     pub method: Arc<dyn Culler>,
     /// The walkthrough and user it belongs to, if any.
     pub user: Option<User>,
+    /// The method's options, to make its cache again if a failed cull lost it.
+    options: MethodOptions,
     /// Its bytes when made (what the store first weighs it at).
     created_bytes: usize,
     frames: Arc<tokio::sync::Mutex<Frames>>,
@@ -62,19 +67,23 @@ pub struct Session {
 
 /// What a session carries from frame to frame.
 struct Frames {
-    cache: ClientCache,
+    /// The method's cache; `None` only after a cull that lost it (the
+    /// next frame makes a fresh one).
+    cache: Option<ClientCache>,
     /// The number the next frame gets.
     next: u64,
     /// The last frames sent, oldest first.
     kept: VecDeque<(u64, IdSet)>,
-    /// This frame's set, while it is culled and answered.
+    /// This frame's set, while it is culled and answered (its buffers
+    /// between frames).
     visible: VisibleSet,
     /// The last frame's set (the newest in `kept`) as culled: most clients
     /// hold it, and diffing against it needs no decoding.
     previous: VisibleSet,
     /// An older base, decoded.
     base: Vec<u32>,
-    users_visible: Vec<bool>,
+    /// The other users' avatars, and which of them this frame sees.
+    occludees: Occludees,
     /// Bytes the store last weighed the session at.
     weighed: usize,
 }
@@ -98,14 +107,15 @@ impl Session {
         cache: ClientCache,
         user: Option<User>,
     ) -> Session {
+        let options = cache.options().clone();
         let mut frames = Frames {
-            cache,
+            cache: Some(cache),
             next: 1,
             kept: VecDeque::with_capacity(KEEP_FRAMES + 1),
             visible: VisibleSet::new(),
             previous: VisibleSet::new(),
             base: Vec::new(),
-            users_visible: Vec::new(),
+            occludees: Occludees::default(),
             weighed: 0,
         };
         frames.weighed = frames.bytes(&*method);
@@ -114,69 +124,65 @@ impl Session {
             scene,
             method,
             user,
+            options,
             created_bytes: frames.weighed,
             frames: Arc::new(tokio::sync::Mutex::new(frames)),
         }
     }
 
     /// Answers one frame, after every frame that reached the session
-    /// before it. Culling a method that is not cheap runs on a blocking
-    /// thread.
+    /// before it; the cull runs where the session's method runs.
     pub async fn frame(&self, view: View, base: Option<u64>) -> Result<Answered, ApiError> {
-        let mut frames = self.frames.clone().lock_owned().await;
-        let method = self.method.clone();
+        let mut frames = self.frames.lock().await;
         // The user moves before looking, so others see where it is now.
         let others = self
             .user
             .as_ref()
-            .map(|u| u.moved(&view.camera, &self.scene.scene().origin));
-        let work = move || {
-            let f = &mut *frames;
-            let boxes: Vec<_> = others.iter().flatten().map(|(_, b)| *b).collect();
-            let stats = method.cull_dynamic(
-                &view,
-                &mut f.cache,
-                &mut f.visible,
-                &boxes,
-                &mut f.users_visible,
-            );
-            let mut answer = f.answer(base);
-            answer.users_visible = others.map(|others| {
-                others
-                    .into_iter()
-                    .zip(&f.users_visible)
-                    .filter(|&(_, &seen)| seen)
-                    .map(|((user, _), _)| user)
-                    .collect()
-            });
-            let bytes = f.bytes(&*method);
-            let resized = (bytes.abs_diff(f.weighed) > f.weighed / 8).then(|| {
-                f.weighed = bytes;
-                bytes
-            });
-            Answered {
-                frame: answer,
-                stats,
-                resized,
-            }
+            .map(|u| u.moved(view.camera(), &self.scene.scene().origin));
+        let f = &mut *frames;
+        let cache = match f.cache.take() {
+            Some(cache) => cache,
+            None => self.method.new_cache(&self.options)?,
         };
-        if self.method.is_cheap() {
-            Ok(work())
-        } else {
-            tokio::task::spawn_blocking(work)
-                .await
-                .map_err(|e| ApiError::Internal(format!("cull task failed: {e}")))
-        }
+        let mut job = CullJob::new(view, cache);
+        job.out = std::mem::take(&mut f.visible);
+        job.occludees = std::mem::take(&mut f.occludees);
+        job.occludees
+            .set_boxes(others.iter().flatten().map(|(_, b)| *b));
+        let culled = self.scene.cull(&self.method, job).await?;
+        let mut job = culled.job;
+        let mut answer = f.answer(&mut job.out, base);
+        answer.users_visible = others.map(|others| {
+            others
+                .into_iter()
+                .zip(job.occludees.visible())
+                .filter(|&(_, &seen)| seen)
+                .map(|((user, _), _)| user)
+                .collect()
+        });
+        f.visible = job.out;
+        f.occludees = job.occludees;
+        f.cache = Some(job.cache);
+        let bytes = f.bytes(&*self.method);
+        let resized = (bytes.abs_diff(f.weighed) > f.weighed / 8).then(|| {
+            f.weighed = bytes;
+            bytes
+        });
+        Ok(Answered {
+            frame: answer,
+            stats: culled.stats,
+            resized,
+        })
     }
 }
 
 impl Frames {
     /// The delta of the culled `visible` against `base` (or the last frame
-    /// sent); keeps the new set.
-    fn answer(&mut self, base: Option<u64>) -> FrameResponse {
+    /// sent); keeps the new set, swapping it with `previous`.
+    fn answer(&mut self, visible: &mut VisibleSet, base: Option<u64>) -> FrameResponse {
         let frame = self.next;
         self.next += 1;
-        let ids = self.visible.ids();
+        let ids = visible.ids();
         let held = match base {
             Some(b) => self.kept.iter().find(|(n, _)| *n == b),
             None => self.kept.back(),
@@ -206,7 +212,7 @@ impl Frames {
         // This set is the next frame's `previous`; the next cull reuses the
         // old one's buffers. Swapped only once the frame is kept, so a cull
         // that never finished cannot leave `previous` out of step.
-        std::mem::swap(&mut self.visible, &mut self.previous);
+        std::mem::swap(visible, &mut self.previous);
         out
     }
 
@@ -219,8 +225,8 @@ impl Frames {
             + self.visible.heap_bytes()
             + self.previous.heap_bytes()
             + self.base.capacity() * std::mem::size_of::<u32>()
-            + self.users_visible.capacity()
-            + method.cache_bytes(&self.cache)
+            + self.occludees.heap_bytes()
+            + self.cache.as_ref().map_or(0, |c| method.cache_bytes(c))
     }
 }
 

@@ -12,7 +12,7 @@ use super::error::ApiError;
 use super::metrics::Metrics;
 use super::session::Sessions;
 use super::walkthrough::Walkthroughs;
-use crate::cull::SceneMethods;
+use crate::cull::{MethodContext, Registry, SceneMethods};
 use crate::scene::Scene;
 
 /// Limits applied to every request.
@@ -90,15 +90,29 @@ struct Shared {
 pub struct DuplicateScene(pub String);
 
 impl AppState {
-    /// State over these scenes; prepares each scene's methods.
+    /// State over these scenes, each prepared with the standard methods.
     pub fn new(scenes: Vec<Arc<Scene>>, limits: Limits) -> Result<AppState, DuplicateScene> {
+        AppState::with_methods(
+            scenes,
+            limits,
+            &Registry::standard(),
+            &MethodContext::default(),
+        )
+    }
+
+    /// State over these scenes, each prepared with `registry`'s methods in
+    /// `context`.
+    pub fn with_methods(
+        scenes: Vec<Arc<Scene>>,
+        limits: Limits,
+        registry: &Registry,
+        context: &MethodContext,
+    ) -> Result<AppState, DuplicateScene> {
         let mut map = BTreeMap::new();
         for scene in scenes {
             let id = scene.id.clone();
-            if map
-                .insert(id.clone(), Arc::new(SceneMethods::prepare(scene)))
-                .is_some()
-            {
+            let methods = SceneMethods::prepare_with(scene, registry, context);
+            if map.insert(id.clone(), Arc::new(methods)).is_some() {
                 return Err(DuplicateScene(id));
             }
         }

@@ -1,6 +1,6 @@
 //! Multi-user walkthroughs: several sessions in one scene, each user an
 //! avatar that the others' frames test as a dynamic occludee
-//! ([`crate::cull::CullMethod::cull_dynamic`]), with the same method.
+//! ([`crate::cull::Occludees`]), with the same method.
 //!
 //! An avatar is a box 0.5 × 1.8 × 0.5 m: from 1.7 m below the eye (the
 //! feet of a walker whose eye is at 1.7 m) to 0.1 m above it (the head).

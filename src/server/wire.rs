@@ -223,16 +223,28 @@ pub struct StatsBody {
     pub in_frustum: Option<u64>,
     /// Objects in the answer.
     pub visible: u64,
+    /// The method that answered instead, when `method` failed (`frustum`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback: Option<String>,
+    /// Why `method` failed, when it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback_reason: Option<String>,
 }
 
 impl From<CullStats> for StatsBody {
     fn from(s: CullStats) -> Self {
+        let (fallback, fallback_reason) = match s.fallback {
+            Some(f) => (Some(f.method.to_string()), Some(f.reason)),
+            None => (None, None),
+        };
         StatsBody {
             method: s.method.to_string(),
             cull_us: s.cull_us,
             nodes_tested: s.nodes_tested,
             in_frustum: s.in_frustum,
             visible: s.visible,
+            fallback,
+            fallback_reason,
         }
     }
 }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use glam::DVec3;
-use pvsd::cull::{MethodSpec, SceneMethods};
+use pvsd::cull::{CullJob, Culler, MethodOptions, MethodSpec, Registry, SceneMethods};
 use pvsd::eval::{Contender, EvalParams, WalkKind, WalkParams};
 use pvsd::geom::Camera;
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
@@ -101,17 +101,18 @@ pub fn rng(seed: u64) -> ChaCha8Rng {
 /// 1024×768 still covers a pixel centre here at least as often as not.
 pub const CHECK_VIEWPORT: [u32; 2] = [256, 160];
 
-/// The shared conservativeness check (DESIGN "Accuracy"): runs a fresh
-/// contender from `make` over each walk of `scene` against ground truth, and
-/// reports every walk where a method that claims to be conservative dropped
-/// a truth-visible object. Every method's tests go through it.
+/// The shared conservativeness check (DESIGN "Accuracy"): runs fresh
+/// contenders from `make` over each walk of `methods`' scene against ground
+/// truth, and reports every walk where a method that claims to be
+/// conservative dropped a truth-visible object. Every method's tests go
+/// through it; it refuses a walk that sees nothing (it would check nothing).
 pub fn check_conservative(
-    scene: &Arc<Scene>,
+    methods: &SceneMethods,
     walks: &[WalkKind],
     frames: usize,
-    make: impl Fn(&SceneMethods) -> Contender,
+    make: impl Fn(&SceneMethods) -> Vec<Contender>,
 ) -> Result<(), String> {
-    let methods = SceneMethods::prepare(scene.clone());
+    let scene = methods.scene();
     let mut failures = Vec::new();
     for &kind in walks {
         let params = EvalParams {
@@ -126,34 +127,37 @@ pub fn check_conservative(
         };
         let cameras = pvsd::eval::walk(scene, &params.walk)
             .map_err(|e| format!("{} {}: {e}", scene.id, kind.name()))?;
-        let report = pvsd::eval::run(scene, vec![make(&methods)], &cameras, &params, |_| {})
+        let contenders = make(methods);
+        assert!(!contenders.is_empty(), "no method to check");
+        let report = pvsd::eval::run(scene, contenders, &cameras, &params, |_| {})
             .map_err(|e| e.to_string())?;
-        let m = &report.methods[0];
-        assert!(
-            m.mean_truth > 0.0,
-            "{} {}: the walk sees nothing, so it checks nothing",
-            scene.id,
-            kind.name()
-        );
-        if m.conservative && m.misses > 0 {
-            let examples: Vec<String> = m
-                .miss_examples
-                .iter()
-                .map(|&(frame, id)| {
-                    format!(
-                        "frame {frame}: {} ({id})",
-                        scene.objects()[id as usize].name
-                    )
-                })
-                .collect();
-            failures.push(format!(
-                "{} {} walk: {} misses by {}; {}",
+        for m in &report.methods {
+            assert!(
+                m.mean_truth > 0.0,
+                "{} {}: the walk sees nothing, so it checks nothing",
                 scene.id,
-                kind.name(),
-                m.misses,
-                m.method,
-                examples.join(", ")
-            ));
+                kind.name()
+            );
+            if m.conservative && m.misses > 0 {
+                let examples: Vec<String> = m
+                    .miss_examples
+                    .iter()
+                    .map(|&(frame, id)| {
+                        format!(
+                            "frame {frame}: {} ({id})",
+                            scene.objects()[id as usize].name
+                        )
+                    })
+                    .collect();
+                failures.push(format!(
+                    "{} {} walk: {} misses by {}; {}",
+                    scene.id,
+                    kind.name(),
+                    m.misses,
+                    m.method,
+                    examples.join(", ")
+                ));
+            }
         }
     }
     if failures.is_empty() {
@@ -163,13 +167,83 @@ pub fn check_conservative(
     }
 }
 
-/// [`check_conservative`] for a method named by its spec (`frustum`, `occlusion_tree:k=32`).
+/// [`check_conservative`] for one method named by its spec (`frustum`, `occlusion_tree:k=32`).
 pub fn assert_conservative(scene: &Arc<Scene>, method: &str, walks: &[WalkKind], frames: usize) {
     let spec: MethodSpec = method.parse().unwrap();
-    check_conservative(scene, walks, frames, |m| {
-        Contender::from_spec(m, &spec).unwrap()
+    let methods = SceneMethods::prepare(scene.clone());
+    check_conservative(&methods, walks, frames, |m| {
+        vec![Contender::from_spec(m, &spec).unwrap()]
     })
     .unwrap_or_else(|e| panic!("{e}"));
+}
+
+/// Every method `methods` supports, once with its defaults and once with
+/// each option set its registry entry is checked with
+/// ([`pvsd::cull::MethodEntry::checked_with`]), as (label, method, options).
+pub fn checked_methods(
+    methods: &SceneMethods,
+    registry: &Registry,
+) -> Vec<(String, Arc<dyn Culler>, MethodOptions)> {
+    let mut out = Vec::new();
+    for method in methods.methods() {
+        let entry = registry
+            .entries()
+            .iter()
+            .find(|e| e.name == method.name())
+            .expect("a prepared method has a registry entry");
+        out.push((entry.name.to_string(), method.clone(), MethodOptions::new()));
+        for options in entry.checked_with {
+            let spec: MethodSpec = format!("{}:{options}", entry.name)
+                .parse()
+                .unwrap_or_else(|e| panic!("{}'s checked_with: {e}", entry.name));
+            out.push((spec.to_string(), method.clone(), spec.options));
+        }
+    }
+    out
+}
+
+/// Every checked method's answer for `cam` holds every truth-visible
+/// object; returns how many objects the truth saw, so that a caller can
+/// refuse cameras that check nothing.
+pub fn check_camera(methods: &SceneMethods, registry: &Registry, cam: Camera) -> usize {
+    let scene = methods.scene();
+    let truth = pvsd::truth::Truth::render(
+        scene,
+        &Camera {
+            viewport: CHECK_VIEWPORT,
+            ..cam
+        },
+    )
+    .unwrap();
+    let view = pvsd::cull::View::new(cam, scene).unwrap();
+    let visible = truth.visible();
+    for (label, method, options) in checked_methods(methods, registry) {
+        let job = CullJob::new(view, method.new_cache(&options).unwrap());
+        let culled = methods.cull_blocking(&method, job).unwrap();
+        assert!(
+            culled.stats.fallback.is_none(),
+            "{label} fell back from {cam:?}"
+        );
+        for &v in &visible {
+            assert!(
+                culled.job.out.ids().binary_search(&v).is_ok(),
+                "{label} dropped {} ({v}) from {cam:?}",
+                scene.objects()[v as usize].name
+            );
+        }
+    }
+    visible.len()
+}
+
+/// At least `share` of the cameras saw something (counts from
+/// [`check_camera`]): checks at extreme cameras were not vacuous.
+pub fn assert_seen(seen: &[usize], share: f64) {
+    let seeing = seen.iter().filter(|&&n| n > 0).count();
+    assert!(
+        seeing > 0 && seeing as f64 >= share * seen.len() as f64,
+        "only {seeing} of {} cameras saw anything: {seen:?}",
+        seen.len()
+    );
 }
 
 /// Sends a request to a real server and decodes its JSON answer.

@@ -14,12 +14,14 @@
 
 use std::sync::Arc;
 
-use crate::cull::{
-    CullCounters, CullMethod, InFrustum, MethodError, MethodOptions, View, VisibleSet,
+use super::subtree::frustum_cull_subtree;
+use super::{
+    CullCounters, CullError, CullMethod, Execution, InFrustum, MethodError, MethodOptions,
+    Occludees, View, VisibleSet,
 };
-use crate::geom::{ALL_PLANES, Frustum, PlaneMask, Side};
+use crate::geom::{ALL_PLANES, Frustum};
 use crate::scene::Scene;
-use crate::spatial::{KdTree, NodeKind};
+use crate::spatial::KdTree;
 
 /// Hierarchical frustum culling; stateless, conservative, no options.
 pub struct FrustumCulling {
@@ -61,82 +63,34 @@ impl CullMethod for FrustumCulling {
         true
     }
 
-    fn is_cheap(&self) -> bool {
-        true
+    /// Microseconds a view: less than handing it to another thread.
+    fn execution(&self) -> Execution {
+        Execution::Inline
     }
 
-    fn cull(&self, view: &View, _: &mut (), out: &mut VisibleSet) -> CullCounters {
+    /// Occludees keep the frustum's answer they arrive with.
+    fn cull(
+        &self,
+        view: &View,
+        _: &mut (),
+        out: &mut VisibleSet,
+        _: &mut Occludees,
+    ) -> Result<CullCounters, CullError> {
         if self.tree.nodes().is_empty() {
-            return CullCounters::default();
+            return Ok(CullCounters::default());
         }
-        let tested = cull_subtree(
+        let tested = frustum_cull_subtree(
             &self.tree,
             &self.scene,
-            &view.frustum,
+            view.frustum(),
             0,
             ALL_PLANES,
             out,
             None,
         );
-        CullCounters {
+        Ok(CullCounters {
             nodes_tested: tested,
             in_frustum: InFrustum::Answer,
-        }
+        })
     }
-}
-
-/// Frustum culling of the subtree under `root`, whose ancestors left the
-/// planes in `mask` to test; adds every object whose box touches the frustum
-/// and, when asked, the leaves reached. Returns the nodes tested. Occlusion
-/// methods finish a subtree they found fully visible with it.
-pub(crate) fn cull_subtree(
-    tree: &KdTree,
-    scene: &Scene,
-    frustum: &Frustum,
-    root: u32,
-    mask: PlaneMask,
-    out: &mut VisibleSet,
-    mut leaves: Option<&mut Vec<u32>>,
-) -> u64 {
-    let (nodes, objects) = (tree.nodes(), scene.objects());
-    let mut tested = 0u64;
-    // Depth is bounded by the build's limit, so the stack stays small.
-    let mut stack: Vec<(u32, PlaneMask)> = Vec::with_capacity(64);
-    stack.push((root, mask));
-    while let Some((i, mask)) = stack.pop() {
-        let node = &nodes[i as usize];
-        tested += 1;
-        let (side, mask) = frustum.classify(&node.bounds, mask);
-        if side != Side::Outside && node.kind == NodeKind::Leaf {
-            if let Some(l) = leaves.as_deref_mut() {
-                l.push(i);
-            }
-        }
-        match (side, node.kind) {
-            (Side::Outside, _) => {}
-            (Side::Inside, NodeKind::Leaf) => out.extend_from_slice(tree.node_refs(node)),
-            (Side::Inside, NodeKind::Inner { .. }) if leaves.is_none() => {
-                out.extend_from_slice(tree.node_refs(node))
-            }
-            (_, NodeKind::Inner { children, .. }) => {
-                stack.push((children[1], mask));
-                stack.push((children[0], mask));
-            }
-            (Side::Intersecting, NodeKind::Leaf) => {
-                for &id in tree.node_refs(node) {
-                    if out.contains(id) {
-                        // Accepted through another leaf (a ground is in most).
-                        continue;
-                    }
-                    // Only the part inside this leaf's cell: the rest of the
-                    // box lies in other leaves, which test their own part.
-                    let part = objects[id as usize].bounds.clipped(&node.cell);
-                    if frustum.classify_exact(&part, mask).0 != Side::Outside {
-                        out.push(id);
-                    }
-                }
-            }
-        }
-    }
-    tested
 }

@@ -50,17 +50,50 @@ pub use prism::{Prism, Prisms};
 pub use tree::{Horizon, Opening};
 
 use crate::cull::{
-    CullCounters, CullMethod, InFrustum, MethodError, MethodOptions, View, VisibleSet,
+    CullCounters, CullError, CullMethod, InFrustum, MethodError, MethodOptions, Occludees, Ranged,
+    View, VisibleSet,
 };
 use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
 use crate::scene::Scene;
 use crate::spatial::QuadTree;
 
-const OPTIONS: &[&str] = &["areas", "min_area", "columns"];
+/// `areas=true`: each visible id carries a bound of the pixels it covers.
+const AREAS: &str = "areas";
+
+/// Objects whose area bound is under this many pixels are dropped (not
+/// conservative unless 0).
+const MIN_AREA: Ranged<f64> = Ranged {
+    key: "min_area",
+    noun: "a pixel count",
+    default: 0.0,
+    min: 0.0,
+    max: 1e9,
+};
+
+/// Columns of the horizon across the view.
+const COLUMNS: Ranged<usize> = Ranged {
+    key: "columns",
+    noun: "a whole number",
+    default: 1024,
+    min: 16,
+    max: 65536,
+};
+
+const OPTIONS: [&str; 3] = [AREAS, MIN_AREA.key, COLUMNS.key];
 
 /// A depth is usable for projection when it exceeds this share of the
 /// point's distance: far above the rounding of the depth itself.
 const DEPTH_EPSILON: f64 = 1e-9;
+
+/// A unit forward whose horizontal part is shorter than this looks
+/// straight up or down: the sweep then runs along the image's up, since a
+/// direction normalized from so short a vector would be mostly rounding.
+const VERTICAL_VIEW: f64 = 1e-9;
+
+/// Pixel centres within this many pixels outside a projected rectangle
+/// count as inside it, so that the rounding of the projection can only
+/// raise an area bound (§3.6), never lower it below the pixels shown.
+const PIXEL_SLACK: f64 = 1e-6;
 
 /// The window of screen x when the frustum reaches the eye's vertical plane
 /// (about ±89°): wider views fall back to frustum culling at the sides.
@@ -131,7 +164,7 @@ struct Frame {
 enum Kind {
     Cell,
     Object,
-    /// A dynamic occludee ([`CullMethod::cull_dynamic`]), tested like an object.
+    /// A dynamic occludee ([`Occludees`]), tested like an object.
     Dynamic,
     /// Added after every test at the same depth.
     Mask,
@@ -186,19 +219,19 @@ struct Sweep {
 
 impl Sweep {
     fn new(view: &View, ground: f64) -> Sweep {
-        let basis = view.camera.basis().expect("a validated camera has a basis");
+        let basis = view.basis();
         let horizontal = |v: DVec3| DVec3::new(v.x, 0.0, v.z);
         // Straight up or down the forward has no horizontal part; the
         // image's up then points along the ground.
         let d = horizontal(basis.forward)
             .try_normalize()
-            .filter(|_| horizontal(basis.forward).length() > 1e-9)
+            .filter(|_| horizontal(basis.forward).length() > VERTICAL_VIEW)
             .or_else(|| horizontal(basis.up).try_normalize())
             .unwrap_or(DVec3::X);
         let r = DVec3::new(-d.z, 0.0, d.x);
-        let eye = view.eye;
+        let eye = view.eye();
         let (mut x0, mut x1, mut clamped) = (f64::INFINITY, f64::NEG_INFINITY, true);
-        for c in &view.frustum.corners()[4..] {
+        for c in &view.frustum().corners()[4..] {
             let rel = *c - eye;
             let t = rel.dot(d);
             if t <= DEPTH_EPSILON * rel.abs().max_element() {
@@ -305,26 +338,10 @@ impl CullMethod for HorizonCulling {
     }
 
     fn new_state(&self, options: &MethodOptions) -> Result<HorizonState, MethodError> {
-        let r = options.reader("horizon", OPTIONS);
-        let bad = |option: &str, value: String, expected: &str| MethodError::InvalidOption {
-            method: "horizon".into(),
-            option: option.into(),
-            value,
-            expected: expected.into(),
-        };
-        let areas: bool = r.get("areas", false, "true or false")?;
-        let min_area: f64 = r.get("min_area", 0.0, "a pixel count >= 0")?;
-        if !(min_area.is_finite() && min_area >= 0.0) {
-            return Err(bad("min_area", min_area.to_string(), "a pixel count >= 0"));
-        }
-        let columns: usize = r.get("columns", 1024, "a whole number from 16 to 65536")?;
-        if !(16..=65536).contains(&columns) {
-            return Err(bad(
-                "columns",
-                columns.to_string(),
-                "a whole number from 16 to 65536",
-            ));
-        }
+        let r = options.reader("horizon", &OPTIONS);
+        let areas = r.flag(AREAS, false)?;
+        let min_area = r.ranged(&MIN_AREA)?;
+        let columns = r.ranged(&COLUMNS)?;
         r.finish()?;
         Ok(HorizonState {
             areas,
@@ -349,31 +366,24 @@ impl CullMethod for HorizonCulling {
             + state.masks.capacity() * std::mem::size_of::<Mask>()
     }
 
-    fn cull(&self, view: &View, state: &mut HorizonState, out: &mut VisibleSet) -> CullCounters {
-        self.cull_dynamic(view, state, out, &[], &mut Vec::new())
-    }
-
     /// Dynamic boxes join the sweep as events at their near depth, so only
     /// masks nearer than them can hide them; a box reaching below the
     /// ground level is not occlusion-tested (the masks' reasoning needs
     /// everything at or above it).
-    fn cull_dynamic(
+    fn cull(
         &self,
         view: &View,
         state: &mut HorizonState,
         out: &mut VisibleSet,
-        dynamic: &[Aabb],
-        visible: &mut Vec<bool>,
-    ) -> CullCounters {
+        occludees: &mut Occludees,
+    ) -> Result<CullCounters, CullError> {
         let mut counters = CullCounters {
             nodes_tested: 0,
             in_frustum: InFrustum::Unknown,
         };
-        visible.clear();
-        visible.extend(dynamic.iter().map(|b| view.frustum.intersects(b)));
         let cells = self.quadtree.cells();
         if cells.is_empty() {
-            return counters;
+            return Ok(counters);
         }
         let sweep = Sweep::new(view, self.prisms.ground());
         state.horizon.reset(sweep.x0, sweep.x1);
@@ -393,8 +403,8 @@ impl CullMethod for HorizonCulling {
             planes: ALL_PLANES,
         });
         let ground = self.prisms.ground();
-        for (i, b) in dynamic.iter().enumerate() {
-            if visible[i] && sweep.occludes && f64::from(b.min.y) >= ground {
+        for (i, b) in occludees.boxes().iter().enumerate() {
+            if occludees.visible()[i] && sweep.occludes && f64::from(b.min.y) >= ground {
                 state.queue.push(Event {
                     depth: sweep.near_depth(b),
                     kind: Kind::Dynamic,
@@ -412,7 +422,7 @@ impl CullMethod for HorizonCulling {
                 Kind::Cell => {
                     let cell = &cells[ev.index as usize];
                     counters.nodes_tested += 1;
-                    let (side, planes) = view.frustum.classify(&cell.bounds, ev.planes);
+                    let (side, planes) = view.frustum().classify(&cell.bounds, ev.planes);
                     if side == Side::Outside || self.hidden(&sweep, &state.horizon, &cell.bounds) {
                         continue;
                     }
@@ -426,7 +436,7 @@ impl CullMethod for HorizonCulling {
                         state.stamps[o as usize] = state.frame;
                         counters.nodes_tested += 1;
                         let b = &objects[o as usize].bounds;
-                        if view.frustum.classify_exact(b, planes).0 == Side::Outside {
+                        if view.frustum().classify_exact(b, planes).0 == Side::Outside {
                             continue;
                         }
                         state.queue.push(Event {
@@ -447,7 +457,9 @@ impl CullMethod for HorizonCulling {
                 }
                 Kind::Dynamic => {
                     let i = ev.index as usize;
-                    visible[i] = !self.hidden(&sweep, &state.horizon, &dynamic[i]);
+                    if self.hidden(&sweep, &state.horizon, &occludees.boxes()[i]) {
+                        occludees.hide(i);
+                    }
                 }
                 Kind::Object => {
                     let o = &objects[ev.index as usize];
@@ -481,7 +493,7 @@ impl CullMethod for HorizonCulling {
                 }
             }
         }
-        counters
+        Ok(counters)
     }
 }
 
@@ -509,8 +521,8 @@ fn area_bound(
     b: &Aabb,
     frame: Option<Frame>,
 ) -> f64 {
-    let cam = &view.camera;
-    let basis = cam.basis().expect("a validated camera has a basis");
+    let cam = view.camera();
+    let basis = view.basis();
     let (tx, ty) = cam.half_tangents();
     let [w, h] = cam.viewport.map(f64::from);
     let whole = w * h;
@@ -537,13 +549,13 @@ fn area_bound(
             (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
         }
         let span = |lo: f64, hi: f64, n: f64| {
-            let first = (lo - 0.5 - 1e-6).ceil().max(0.0);
-            let last = (hi - 0.5 + 1e-6).floor().min(n - 1.0);
+            let first = (lo - 0.5 - PIXEL_SLACK).ceil().max(0.0);
+            let last = (hi - 0.5 + PIXEL_SLACK).floor().min(n - 1.0);
             (last - first + 1.0).max(0.0)
         };
         span(x0, x1, w) * span(y0, y1, h)
     };
-    let eye = view.eye;
+    let eye = view.eye();
     let mut bound = centres(&mut b.corners().iter().map(|c| pixel(c.as_dvec3() - eye)));
     if let Some(f) = frame {
         if let Some(open) = horizon.opening(f.x_lo, f.x_hi, f.y_hi) {

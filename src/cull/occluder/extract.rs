@@ -65,6 +65,20 @@ fn key(v: Vec3) -> Key {
     [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]
 }
 
+/// Triangles whose unit normals round to the same multiple of this are
+/// tried together for merging. Grouping only proposes candidates: every
+/// merge must still pass [`is_planar`], so a coarser or finer quantum
+/// changes which polygons merge, never whether an occluder floats off its
+/// surface.
+const NORMAL_QUANTUM: f64 = 1e-4;
+
+/// Likewise for the planes' offsets from the origin (scene units).
+const OFFSET_QUANTUM: f64 = 1e-3;
+
+/// A merged polygon is planar when every corner lies within this many
+/// `f32` ulps (of the largest coordinate) of its plane: see [`is_planar`].
+const PLANARITY_ULPS: f64 = 2.0;
+
 /// Groups triangles by plane, then merges triangles that share an edge
 /// exactly while the union stays convex.
 fn merge_coplanar(tris: &[[Vec3; 3]]) -> Vec<ConvexPolygon> {
@@ -75,9 +89,14 @@ fn merge_coplanar(tris: &[[Vec3; 3]]) -> Vec<ConvexPolygon> {
         // One orientation per plane, so a wall's two sides stay apart but
         // the two windings of one side group together.
         let d = -n.dot(t[0].as_dvec3());
-        let q = |x: f64| (x * 1e4).round() as i64;
+        let q = |x: f64, quantum: f64| (x / quantum).round() as i64;
         groups
-            .entry([q(n.x), q(n.y), q(n.z), (d * 1e3).round() as i64])
+            .entry([
+                q(n.x, NORMAL_QUANTUM),
+                q(n.y, NORMAL_QUANTUM),
+                q(n.z, NORMAL_QUANTUM),
+                q(d, OFFSET_QUANTUM),
+            ])
             .or_default()
             .push(t.to_vec());
     }
@@ -170,7 +189,7 @@ fn is_planar(loop_: &[Vec3]) -> bool {
     };
     let centroid = (0..n).map(v).sum::<DVec3>() / n as f64;
     let magnitude = (0..n).map(|i| v(i).abs().max_element()).fold(0.0, f64::max);
-    let tolerance = 2.0 * f32::EPSILON as f64 * magnitude;
+    let tolerance = PLANARITY_ULPS * f32::EPSILON as f64 * magnitude;
     (0..n).all(|i| normal.dot(v(i) - centroid).abs() <= tolerance)
 }
 

@@ -20,6 +20,7 @@ mod extract;
 
 use glam::DVec3;
 
+use super::occlusion::tolerance::EDGE_ON_TOLERANCE;
 use crate::geom::{Aabb, ConvexPolygon, Plane};
 use crate::scene::Scene;
 use crate::spatial::{KdTree, NodeKind};
@@ -91,7 +92,7 @@ impl Occluders {
             let d = o.centroid - eye;
             let dist2 = d.length_squared();
             let facing = o.plane.signed_distance(eye).abs();
-            if dist2 <= 0.0 || facing <= 1e-9 * (1.0 + dist2.sqrt()) {
+            if dist2 <= 0.0 || facing <= EDGE_ON_TOLERANCE * (1.0 + dist2.sqrt()) {
                 continue;
             }
             let cos = (o.plane.normal.dot(d) / dist2.sqrt()).abs();

@@ -11,29 +11,16 @@
 
 use glam::DVec3;
 
+use crate::cull::occlusion::Visibility;
+use crate::cull::occlusion::tolerance::too_small_to_trust;
 use crate::geom::{Aabb, ConvexPolygon, Plane};
 
-/// Visibility of a region or polygon with respect to the tree's occluders.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Visibility {
-    /// Hidden by the occluders.
-    Invisible,
-    /// Partly hidden, partly not (or not known to be either).
-    Partial,
-    /// Not hidden at all.
-    Full,
-}
-
-impl Visibility {
-    /// The visibility of a union (Table 1).
-    pub fn combine(self, other: Visibility) -> Visibility {
-        if self == other {
-            self
-        } else {
-            Visibility::Partial
-        }
-    }
-}
+/// A polygon that reaches past a plane by less than this share of the plane
+/// tolerance does not count as reaching past it (the split's own rounding is
+/// of that order); one that reaches further, but by no more than the
+/// tolerance, is a sliver the split would drop, so it is sent whole to both
+/// sides. Either way the polygon is tested on every side it lies on.
+const SLIVER_FLOOR: f64 = 1e-3;
 
 /// The visibility of a union of parts, combined as they come (Table 1).
 #[derive(Clone, Copy, Debug, Default)]
@@ -245,13 +232,8 @@ impl OcclusionTree {
 
     /// Replaces out-leaf `n` by the occlusion volume of `poly`.
     fn grow(&mut self, n: u32, poly: Flagged, plane: Plane) {
-        // A fragment barely larger than the tolerance has shadow planes that
-        // rounding can tilt or flip; leaving the leaf lit is always safe.
-        let v = &poly.vertices;
-        let size = (0..v.len())
-            .map(|i| v[i].distance(v[(i + 1) % v.len()]))
-            .fold(0.0, f64::max);
-        if size < 1e3 * self.eps {
+        // Leaving the leaf lit is always safe.
+        if too_small_to_trust(&poly.vertices, self.eps) {
             return;
         }
         let Some(planes) = self.shadow_planes(&poly.vertices, &plane) else {
@@ -446,7 +428,7 @@ impl OcclusionTree {
                     // A sliver thinner than eps on one side of a polygon that
                     // lies beyond eps on the other is dropped by the split;
                     // send such a polygon whole to both subtrees instead.
-                    let tiny = 1e-3 * self.eps;
+                    let tiny = SLIVER_FLOOR * self.eps;
                     let sliver = (hi > tiny && hi <= self.eps && lo < -self.eps)
                         || (lo < -tiny && lo >= -self.eps && hi > self.eps);
                     if s.coplanar || sliver {

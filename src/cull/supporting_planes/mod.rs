@@ -14,7 +14,7 @@
 //! must lie in its own occluder's shadow, that plane ignored.
 //!
 //! Occluders are picked per view by area-angle as for `occlusion_tree`; the
-//! kd-tree is traversed by [`super::hierarchy`]. The temporal cache keeps,
+//! kd-tree is traversed by [`super::occlusion::hierarchy`]. The temporal cache keeps,
 //! per kd node, the occluder that hid it last frame and tries it first.
 //! Every object is tested with its whole box (its part in a leaf), never
 //! from its centre only.
@@ -24,10 +24,13 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::hierarchy::{self, Target};
 use super::occluder::Occluders;
-use super::occlusion_tree::{Selection, SelectionOptions, Visibility, plane_eps, visible_parts};
-use super::{CullCounters, CullMethod, MethodError, MethodOptions, View, VisibleSet};
+use super::occlusion::hierarchy::{self, Target};
+use super::occlusion::tolerance::{plane_tolerance, too_small_to_trust};
+use super::occlusion::{Selection, SelectionOptions, Visibility, visible_parts};
+use super::{
+    CullCounters, CullError, CullMethod, MethodError, MethodOptions, Occludees, View, VisibleSet,
+};
 use crate::geom::{Aabb, ConvexPolygon, Plane};
 use crate::scene::Scene;
 use crate::spatial::KdTree;
@@ -108,15 +111,9 @@ impl SupportingPlanesCulling {
             o.plane.flipped()
         };
         let v = &part.vertices;
-        // A part barely larger than the tolerance has edge planes that
-        // rounding can tilt or flip; not using it is always safe.
-        let size = (0..v.len())
-            .map(|i| v[i].distance(v[(i + 1) % v.len()]))
-            .fold(0.0, f64::max);
-        if size < 1e3 * eps {
+        if too_small_to_trust(v, eps) {
             return None;
         }
-        let v = &part.vertices;
         let inner = part.centroid();
         let edges = (0..v.len())
             .map(|e| {
@@ -205,10 +202,7 @@ impl CullMethod for SupportingPlanesCulling {
     }
 
     fn new_state(&self, options: &MethodOptions) -> Result<Self::State, MethodError> {
-        let r = options.reader(
-            "supporting_planes",
-            &["k", "lambda", "min_cost", "temporal"],
-        );
+        let r = options.reader("supporting_planes", &SelectionOptions::KEYS);
         let selection = Selection::new(SelectionOptions::read(&r)?);
         r.finish()?;
         Ok(SupportingPlanesState {
@@ -221,20 +215,15 @@ impl CullMethod for SupportingPlanesCulling {
         true
     }
 
-    fn cull(&self, view: &View, state: &mut Self::State, out: &mut VisibleSet) -> CullCounters {
-        self.cull_dynamic(view, state, out, &[], &mut Vec::new())
-    }
-
-    fn cull_dynamic(
+    fn cull(
         &self,
         view: &View,
         state: &mut Self::State,
         out: &mut VisibleSet,
-        dynamic: &[Aabb],
-        visible: &mut Vec<bool>,
-    ) -> CullCounters {
-        let eye = view.eye;
-        let eps = plane_eps(&self.scene, eye);
+        occludees: &mut Occludees,
+    ) -> Result<CullCounters, CullError> {
+        let eye = view.eye();
+        let eps = plane_tolerance(&self.scene, eye);
         let picked = state
             .selection
             .occluders_for(&self.tree, &self.occluders, view);
@@ -331,8 +320,8 @@ impl CullMethod for SupportingPlanesCulling {
             &mut test,
             out,
         );
-        hierarchy::cull_dynamic(view, dynamic, &mut test, visible);
-        counters
+        hierarchy::test_occludees(occludees, &mut test);
+        Ok(counters)
     }
 
     fn state_bytes(&self, state: &Self::State) -> usize {

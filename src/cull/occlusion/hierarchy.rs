@@ -14,9 +14,9 @@
 //! node whose visibility is found unambiguous unmarks its parent; leaves are
 //! never marked.
 
-use super::frustum::cull_subtree;
-use super::occlusion_tree::Visibility;
-use super::{CullCounters, InFrustum, View, VisibleSet};
+use super::Visibility;
+use crate::cull::subtree::frustum_cull_subtree;
+use crate::cull::{CullCounters, InFrustum, Occludees, View, VisibleSet};
 use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
 use crate::scene::Scene;
 use crate::spatial::{KdTree, NodeKind};
@@ -33,19 +33,19 @@ pub(crate) enum Target {
 }
 
 /// Tests dynamic occludees (avatars) with a method's occlusion `test` once
-/// the hierarchy is culled: `visible[i]` is false when `dynamic[i]` is
-/// outside the frustum or the test finds it invisible. Occluders are real
-/// surfaces, so the test holds whatever order boxes are asked in.
-pub(crate) fn cull_dynamic(
-    view: &View,
-    dynamic: &[Aabb],
+/// the hierarchy is culled: those in the frustum that the test finds
+/// invisible are hidden. Occluders are real surfaces, so the test holds
+/// whatever order boxes are asked in.
+pub(crate) fn test_occludees(
+    occludees: &mut Occludees,
     test: &mut dyn FnMut(Target, &Aabb) -> Visibility,
-    visible: &mut Vec<bool>,
 ) {
-    visible.clear();
-    visible.extend(dynamic.iter().enumerate().map(|(i, b)| {
-        view.frustum.intersects(b) && test(Target::Dynamic(i as u32), b) != Visibility::Invisible
-    }));
+    for i in 0..occludees.boxes().len() {
+        let b = occludees.boxes()[i];
+        if occludees.visible()[i] && test(Target::Dynamic(i as u32), &b) == Visibility::Invisible {
+            occludees.hide(i);
+        }
+    }
 }
 
 /// Knobs of the traversal.
@@ -90,7 +90,7 @@ pub(crate) fn cull(
     while let Some((i, mask, parent)) = stack.pop() {
         let node = &nodes[i as usize];
         tested += 1;
-        let (side, mask) = view.frustum.classify(&node.bounds, mask);
+        let (side, mask) = view.frustum().classify(&node.bounds, mask);
         if side == Side::Outside {
             marks[i as usize] = false;
             unmark(marks, parent);
@@ -112,10 +112,10 @@ pub(crate) fn cull(
             Visibility::Full => {
                 marks[i as usize] = false;
                 unmark(marks, parent);
-                tested += cull_subtree(
+                tested += frustum_cull_subtree(
                     tree,
                     scene,
-                    &view.frustum,
+                    view.frustum(),
                     i,
                     mask,
                     out,
@@ -138,7 +138,7 @@ pub(crate) fn cull(
                             continue;
                         }
                         let part = scene.objects()[id as usize].bounds.clipped(&node.cell);
-                        if view.frustum.classify_exact(&part, mask).0 != Side::Outside
+                        if view.frustum().classify_exact(&part, mask).0 != Side::Outside
                             && test(Target::Object(id), &part) != Visibility::Invisible
                         {
                             out.push(id);

@@ -1,0 +1,141 @@
+//! A device's work queue: the execution mode of methods that run on
+//! hardware (GPU occlusion queries, Tai & Hsu), or anything else that must
+//! be driven from one thread.
+//!
+//! One thread owns the device and takes jobs from a bounded queue; what
+//! waits in the queue when the thread comes back for more is run as one
+//! batch ([`Culler::cull_batch`]), so requests that arrive together share a
+//! submission. Callers never block an async worker on it: a full queue
+//! refuses at once (the server answers 503 with `Retry-After`), and the
+//! answer comes back through a one-shot channel that the caller awaits.
+//! A panic in a batch fails that batch's jobs (each then answered by
+//! frustum culling), not the thread.
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::time::Duration;
+
+use tokio::sync::oneshot;
+
+use super::{CullError, CullJob, CullStats, Culler};
+
+/// What a device answers for one job: the job back, with the cull's result.
+pub type DeviceReply = (CullJob, Result<CullStats, CullError>);
+
+/// One job in the queue, with where its answer goes.
+struct Submission {
+    method: Arc<dyn Culler>,
+    job: CullJob,
+    reply: oneshot::Sender<DeviceReply>,
+}
+
+/// Why a job was not queued; the job comes back with it (boxed: a job is
+/// large, and refusals are rare).
+#[derive(Debug)]
+pub enum Refused {
+    /// The queue is full: try again later.
+    Full(Box<CullJob>),
+    /// The device's thread has stopped.
+    Stopped(Box<CullJob>),
+}
+
+/// A bounded queue in front of a thread that owns a device.
+pub struct DeviceQueue {
+    name: String,
+    sender: SyncSender<Submission>,
+    retry_after: Duration,
+}
+
+impl std::fmt::Debug for DeviceQueue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DeviceQueue")
+            .field("name", &self.name)
+            .finish_non_exhaustive()
+    }
+}
+
+impl DeviceQueue {
+    /// Starts the device's thread, named `name`, taking at most `capacity`
+    /// waiting jobs and running at most `max_batch` of them at a time.
+    /// `retry_after` is what a refused client is told to wait.
+    pub fn start(
+        name: &str,
+        capacity: usize,
+        max_batch: usize,
+        retry_after: Duration,
+    ) -> std::io::Result<Arc<DeviceQueue>> {
+        let (sender, receiver) = sync_channel(capacity.max(1));
+        let max_batch = max_batch.max(1);
+        std::thread::Builder::new()
+            .name(format!("pvsd-device-{name}"))
+            .spawn(move || work(receiver, max_batch))?;
+        Ok(Arc::new(DeviceQueue {
+            name: name.to_string(),
+            sender,
+            retry_after,
+        }))
+    }
+
+    /// The device's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// What a client refused by a full queue should wait.
+    pub fn retry_after(&self) -> Duration {
+        self.retry_after
+    }
+
+    /// Queues `job` for `method` without waiting; the answer arrives on the
+    /// returned channel.
+    pub fn submit(
+        &self,
+        method: Arc<dyn Culler>,
+        job: CullJob,
+    ) -> Result<oneshot::Receiver<DeviceReply>, Refused> {
+        let (reply, answer) = oneshot::channel();
+        match self.sender.try_send(Submission { method, job, reply }) {
+            Ok(()) => Ok(answer),
+            Err(TrySendError::Full(s)) => Err(Refused::Full(Box::new(s.job))),
+            Err(TrySendError::Disconnected(s)) => Err(Refused::Stopped(Box::new(s.job))),
+        }
+    }
+}
+
+/// The device thread: runs batches until every sender is gone.
+fn work(receiver: Receiver<Submission>, max_batch: usize) {
+    while let Ok(first) = receiver.recv() {
+        let mut batch = vec![first];
+        while batch.len() < max_batch {
+            match receiver.try_recv() {
+                Ok(s) => batch.push(s),
+                Err(_) => break,
+            }
+        }
+        // One batch per method, in arrival order within each.
+        while !batch.is_empty() {
+            let method = batch[0].method.clone();
+            let (same, rest): (Vec<_>, Vec<_>) = batch
+                .into_iter()
+                .partition(|s| Arc::ptr_eq(&s.method, &method));
+            batch = rest;
+            let (mut jobs, replies): (Vec<_>, Vec<_>) =
+                same.into_iter().map(|s| (s.job, s.reply)).unzip();
+            let results = catch_unwind(AssertUnwindSafe(|| method.cull_batch(&mut jobs)))
+                .ok()
+                .filter(|r| r.len() == jobs.len())
+                .unwrap_or_else(|| {
+                    let failed = Err(CullError::Failed {
+                        method: method.name(),
+                        reason: "the device failed while culling a batch".into(),
+                    });
+                    vec![failed; jobs.len()]
+                });
+            for ((job, result), reply) in jobs.into_iter().zip(results).zip(replies) {
+                // A caller that stopped waiting no longer wants the answer.
+                let _ = reply.send((job, result));
+            }
+        }
+    }
+}

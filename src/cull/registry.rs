@@ -1,0 +1,396 @@
+//! The list of methods, and a scene prepared with the ones it supports.
+//!
+//! A [`Registry`] is one list of [`MethodEntry`]: a name, what the method
+//! is for, and how to build it for a scene, or why the scene cannot have
+//! it. [`SceneMethods::prepare`] runs every entry against one scene with a
+//! [`Preparation`]: the scene, the [`MethodContext`] (configuration, the
+//! bake cache's folder, a device), and what several methods share (the
+//! kd-tree, the occluders), each built once and only when an entry asks
+//! for it, so a scene keeps only what its methods need.
+//!
+//! A new method is its folder under `cull/` and one entry in
+//! [`Registry::standard`]; the server, eval, `/scenes` and the
+//! conservativeness table (tests/conservative.rs) take it from there.
+
+use std::path::PathBuf;
+use std::sync::{Arc, OnceLock};
+
+use super::device::DeviceQueue;
+use super::frustum::FrustumCulling;
+use super::horizon::HorizonCulling;
+use super::occluder::Occluders;
+use super::occlusion_tree::OcclusionTreeCulling;
+use super::supporting_planes::SupportingPlanesCulling;
+use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodSpec};
+use super::{CullError, CullJob, View, VisibleSet};
+use crate::scene::Scene;
+use crate::spatial::{KdTree, KdTreeParams};
+
+/// What preparing methods may use beyond the scene itself.
+#[derive(Clone, Debug, Default)]
+pub struct MethodContext {
+    /// How the shared kd-tree is built.
+    pub kd_tree: KdTreeParams,
+    /// Where baked data (DDO masks, occluder proxies) is cached between
+    /// runs; `None` keeps bakes in memory only.
+    pub bake_dir: Option<PathBuf>,
+    /// The device that device methods submit to; `None` when the machine
+    /// has none (those methods are then unsupported, with that reason).
+    pub device: Option<Arc<DeviceQueue>>,
+    /// Methods the operator turned off; listed as unsupported with that reason.
+    pub disabled: Vec<String>,
+}
+
+/// One scene being prepared: what an entry's `build` reads.
+pub struct Preparation<'a> {
+    scene: &'a Arc<Scene>,
+    context: &'a MethodContext,
+    kd_tree: OnceLock<Arc<KdTree>>,
+    occluders: OnceLock<Option<Arc<Occluders>>>,
+}
+
+impl<'a> Preparation<'a> {
+    fn new(scene: &'a Arc<Scene>, context: &'a MethodContext) -> Self {
+        Preparation {
+            scene,
+            context,
+            kd_tree: OnceLock::new(),
+            occluders: OnceLock::new(),
+        }
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Arc<Scene> {
+        self.scene
+    }
+
+    /// The context the scene is prepared in.
+    pub fn context(&self) -> &MethodContext {
+        self.context
+    }
+
+    /// The scene's kd-tree, built on first use and shared by every method.
+    pub fn kd_tree(&self) -> Arc<KdTree> {
+        self.kd_tree
+            .get_or_init(|| Arc::new(KdTree::build(self.scene, self.context.kd_tree)))
+            .clone()
+    }
+
+    /// The scene's large planar occluders, found on first use; `None` when
+    /// it has none large enough to be worth testing against.
+    pub fn occluders(&self) -> Option<Arc<Occluders>> {
+        self.occluders
+            .get_or_init(|| Occluders::find(self.scene, &self.kd_tree()).map(Arc::new))
+            .clone()
+    }
+
+    /// The occluders, or the reason every occluder-based method gives.
+    pub fn require_occluders(&self) -> Result<Arc<Occluders>, String> {
+        self.occluders()
+            .ok_or_else(|| "no opaque planar occluder is large enough against the scene".into())
+    }
+}
+
+/// Builds a method for a scene, or says why the scene cannot have it.
+pub type Build = fn(&Preparation<'_>) -> Result<Arc<dyn Culler>, String>;
+
+/// One method of the registry.
+#[derive(Clone, Copy)]
+pub struct MethodEntry {
+    /// Its name in requests, one of [`METHOD_NAMES`] for the standard ones.
+    pub name: &'static str,
+    /// What it is for, in a line (the README's method table).
+    pub purpose: &'static str,
+    /// Option sets, besides the defaults, that change how it decides what
+    /// is hidden (`variant=fse`, `k=8:temporal=false`): the
+    /// conservativeness table (tests/conservative.rs) checks each.
+    pub checked_with: &'static [&'static str],
+    /// How to build it for one scene.
+    pub build: Build,
+}
+
+impl std::fmt::Debug for MethodEntry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MethodEntry")
+            .field("name", &self.name)
+            .finish_non_exhaustive()
+    }
+}
+
+/// The methods a server knows, in the order `/scenes` lists them.
+#[derive(Clone, Debug)]
+pub struct Registry {
+    entries: Vec<MethodEntry>,
+}
+
+/// The method `auto` answers with, until `auto` measures each scene:
+/// frustum culling is, per frame, the cheapest conservative answer on every
+/// scene measured so far (README, "Methods").
+pub const AUTO_CHOICE: &str = "frustum";
+
+impl Registry {
+    /// Every method of DESIGN's list; those not built yet say so.
+    pub fn standard() -> Registry {
+        let not_built = |name, purpose, why: fn(&Preparation<'_>) -> _| MethodEntry {
+            name,
+            purpose,
+            checked_with: &[],
+            build: why,
+        };
+        Registry {
+            entries: vec![
+                MethodEntry {
+                    name: "frustum",
+                    purpose: "view-frustum culling over the kd-tree; the exact in-frustum set, and the fallback of every other method",
+                    checked_with: &[],
+                    build: |p| {
+                        Ok(Arc::new(FrustumCulling::new(
+                            p.scene().clone(),
+                            p.kd_tree(),
+                        )))
+                    },
+                },
+                MethodEntry {
+                    name: "occlusion_tree",
+                    purpose: "occlusion trees over k occluders picked per view (Bittner et al.): interiors and cities with large walls",
+                    checked_with: &[
+                        "variant=fse",
+                        "variant=fmc",
+                        "k=8:temporal=false:min_cost=0",
+                    ],
+                    build: |p| {
+                        Ok(Arc::new(OcclusionTreeCulling::new(
+                            p.scene().clone(),
+                            p.kd_tree(),
+                            p.require_occluders()?,
+                        )))
+                    },
+                },
+                MethodEntry {
+                    name: "supporting_planes",
+                    purpose: "supporting and separating planes against large occluders, cached between frames (Coorg & Teller)",
+                    checked_with: &["k=8:temporal=false:min_cost=0"],
+                    build: |p| {
+                        Ok(Arc::new(SupportingPlanesCulling::new(
+                            p.scene().clone(),
+                            p.kd_tree(),
+                            p.require_occluders()?,
+                        )))
+                    },
+                },
+                MethodEntry {
+                    name: "horizon",
+                    purpose: "occlusion horizons over convex vertical prisms (Downs et al.): cities standing on a ground",
+                    checked_with: &["columns=64"],
+                    build: |p| Ok(Arc::new(HorizonCulling::new(p.scene().clone())?)),
+                },
+                not_built(
+                    "ddo",
+                    "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
+                    |_| Err("not built yet: directional discretized occluders are issue 15".into()),
+                ),
+                not_built(
+                    "gpu",
+                    "hardware occlusion queries on a Vulkan device, lavapipe on the CPU (Tai & Hsu)",
+                    |_| Err("not built yet: GPU occlusion queries are issue 14".into()),
+                ),
+                not_built(
+                    "raster",
+                    "a conservative software depth buffer on the CPU (against Masked Occlusion Culling)",
+                    |_| Err("not built yet: software rasterized occlusion is issue 16".into()),
+                ),
+            ],
+        }
+    }
+
+    /// This registry with one more entry (a test's method, a plug-in);
+    /// an entry of the same name is replaced.
+    pub fn with(mut self, entry: MethodEntry) -> Registry {
+        self.entries.retain(|e| e.name != entry.name);
+        self.entries.push(entry);
+        self
+    }
+
+    /// The entries, in order.
+    pub fn entries(&self) -> &[MethodEntry] {
+        &self.entries
+    }
+
+    /// Whether `name` is one of its methods.
+    pub fn knows(&self, name: &str) -> bool {
+        self.entries.iter().any(|e| e.name == name)
+    }
+}
+
+impl Default for Registry {
+    fn default() -> Self {
+        Registry::standard()
+    }
+}
+
+/// A method a scene does not support, and why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Unsupported {
+    /// The method.
+    pub method: &'static str,
+    /// Why, in a sentence for `/scenes`.
+    pub reason: String,
+}
+
+/// A scene with the methods it supports, ready to answer views.
+///
+/// Built once per scene at load; everything in it is read-only afterwards
+/// and shared between requests.
+pub struct SceneMethods {
+    scene: Arc<Scene>,
+    /// Supported methods, in registry order.
+    methods: Vec<Arc<dyn Culler>>,
+    /// The registry's other methods, with why.
+    unsupported: Vec<Unsupported>,
+    /// What answers when a method fails: frustum culling, which cannot.
+    fallback: Arc<dyn Culler>,
+    /// Every name a request may use here (the registry's and `auto`).
+    known: Vec<&'static str>,
+}
+
+impl SceneMethods {
+    /// Prepares `scene` with the standard registry and a default context.
+    pub fn prepare(scene: Arc<Scene>) -> SceneMethods {
+        SceneMethods::prepare_with(scene, &Registry::standard(), &MethodContext::default())
+    }
+
+    /// Prepares what `scene`'s methods need and nothing more.
+    pub fn prepare_with(
+        scene: Arc<Scene>,
+        registry: &Registry,
+        context: &MethodContext,
+    ) -> SceneMethods {
+        let prep = Preparation::new(&scene, context);
+        let mut methods = Vec::new();
+        let mut unsupported = Vec::new();
+        for entry in registry.entries() {
+            let built = if context.disabled.iter().any(|d| d == entry.name) {
+                Err("disabled by the server's configuration".to_string())
+            } else {
+                (entry.build)(&prep)
+            };
+            match built {
+                Ok(method) => {
+                    debug_assert_eq!(method.name(), entry.name, "an entry builds its own method");
+                    methods.push(method);
+                }
+                Err(reason) => unsupported.push(Unsupported {
+                    method: entry.name,
+                    reason,
+                }),
+            }
+        }
+        let fallback: Arc<dyn Culler> = match methods.iter().find(|m| m.name() == "frustum") {
+            Some(f) => f.clone(),
+            None => Arc::new(FrustumCulling::new(scene.clone(), prep.kd_tree())),
+        };
+        let known = registry
+            .entries()
+            .iter()
+            .map(|e| e.name)
+            .chain(["auto"])
+            .collect();
+        SceneMethods {
+            scene,
+            methods,
+            unsupported,
+            fallback,
+            known,
+        }
+    }
+
+    /// Methods of the registry this scene does not support, with why.
+    pub fn unsupported(&self) -> &[Unsupported] {
+        &self.unsupported
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Arc<Scene> {
+        &self.scene
+    }
+
+    /// Names of the methods this scene supports, in registry order (`auto` excluded).
+    pub fn names(&self) -> Vec<&'static str> {
+        self.methods.iter().map(|m| m.name()).collect()
+    }
+
+    /// The supported methods, in registry order.
+    pub fn methods(&self) -> &[Arc<dyn Culler>] {
+        &self.methods
+    }
+
+    /// The method that answers when another fails (frustum culling).
+    pub fn fallback(&self) -> &Arc<dyn Culler> {
+        &self.fallback
+    }
+
+    /// The method called `name`; `auto` is [`AUTO_CHOICE`] (or frustum
+    /// culling, when a registry leaves that out).
+    pub fn get(&self, name: &str) -> Result<&Arc<dyn Culler>, MethodError> {
+        if name == "auto" {
+            return Ok(self
+                .methods
+                .iter()
+                .find(|m| m.name() == AUTO_CHOICE)
+                .unwrap_or(&self.fallback));
+        }
+        if let Some(m) = self.methods.iter().find(|m| m.name() == name) {
+            return Ok(m);
+        }
+        if self.known.contains(&name) || METHOD_NAMES.contains(&name) {
+            Err(MethodError::Unsupported {
+                name: name.into(),
+                scene: self.scene.id.clone(),
+                supported: self
+                    .names()
+                    .into_iter()
+                    .map(String::from)
+                    .chain(["auto".to_string()])
+                    .collect(),
+            })
+        } else {
+            Err(MethodError::Unknown { name: name.into() })
+        }
+    }
+
+    /// Resolves a spec to its method and a fresh client cache.
+    pub fn prepare_client(
+        &self,
+        spec: &MethodSpec,
+    ) -> Result<(Arc<dyn Culler>, ClientCache), MethodError> {
+        let method = self.get(&spec.name)?;
+        let cache = method.new_cache(&spec.options)?;
+        Ok((method.clone(), cache))
+    }
+
+    /// One stateless answer on this thread: a fresh cache, one view (the
+    /// command line and tests; never from an async worker, since a device
+    /// method waits for its device here).
+    pub fn cull_once(
+        &self,
+        spec: &MethodSpec,
+        view: &View,
+        out: &mut VisibleSet,
+    ) -> Result<CullStats, CullOnceError> {
+        let (method, cache) = self.prepare_client(spec)?;
+        let culled = self.cull_blocking(&method, CullJob::new(*view, cache))?;
+        *out = culled.job.out;
+        Ok(culled.stats)
+    }
+}
+
+/// Why [`SceneMethods::cull_once`] gave no answer.
+#[derive(Debug, thiserror::Error)]
+pub enum CullOnceError {
+    /// The method or its options were refused.
+    #[error(transparent)]
+    Method(#[from] MethodError),
+    /// The method could not answer.
+    #[error(transparent)]
+    Cull(#[from] CullError),
+}
