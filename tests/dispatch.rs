@@ -345,27 +345,11 @@ async fn one_dispatch_serves_every_route_from_a_device_and_falls_back() {
     let (_, _, again) = post(&c, url.clone(), view(0, Some("on_device"))).await;
     assert!(again["stats"].get("fallback").is_none(), "{again}");
 
-    let metrics = c
-        .get(s.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    let count = |method: &str| -> f64 {
-        metrics
-            .lines()
-            .find(|l| {
-                l.starts_with("pvsd_cull_fallbacks_total{")
-                    && l.contains(&format!("method=\"{method}\""))
-            })
-            .and_then(|l| l.rsplit(' ').next())
-            .map_or(0.0, |n| n.parse().unwrap())
-    };
-    assert_eq!(count("on_device"), 3.0, "{metrics}");
-    assert_eq!(count("panicky"), 1.0);
-    assert_eq!(count("frustum"), 0.0);
+    let fallbacks =
+        |method: &str| format!("pvsd_cull_fallbacks_total{{scene=\"city\",method=\"{method}\"}}");
+    assert_eq!(s.metric(&c, &fallbacks("on_device")).await, 3.0);
+    assert_eq!(s.metric(&c, &fallbacks("panicky")).await, 1.0);
+    assert_eq!(s.metric(&c, &fallbacks("frustum")).await, 0.0);
 }
 
 /// `/scenes` lists the test's methods, and the device method is

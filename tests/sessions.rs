@@ -567,19 +567,11 @@ async fn a_websocket_client_that_stops_reading_stalls_only_itself() {
                       "fov_y_deg": 120, "base": 999_999_999u64})
     .to_string();
     let culls = || async {
-        let text = c
-            .get(s.url("/metrics"))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
-        text.lines()
-            .find(|l| {
-                l.starts_with("pvsd_cull_duration_seconds_count{scene=\"city\",method=\"frustum\"}")
-            })
-            .map_or(0, |l| l.rsplit(' ').next().unwrap().parse::<u64>().unwrap())
+        s.metric(
+            &c,
+            "pvsd_cull_duration_seconds_count{scene=\"city\",method=\"frustum\"}",
+        )
+        .await as u64
     };
     let mut sent = 0u64;
     // Until a send has waited 1.5 s (a send that times out stays queued).

@@ -42,6 +42,22 @@ impl Server {
         format!("http://{}{path}", self.addr)
     }
 
+    /// The value of the `/metrics` sample named `sample` (name and labels,
+    /// as Prometheus prints them), 0 when it is not there yet.
+    pub async fn metric(&self, c: &reqwest::Client, sample: &str) -> f64 {
+        let text = c
+            .get(self.url("/metrics"))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        text.lines()
+            .find_map(|l| l.strip_prefix(sample)?.strip_prefix(' '))
+            .map_or(0.0, |v| v.parse().unwrap())
+    }
+
     /// `ws://addr/path`.
     pub fn ws_url(&self, path: &str) -> String {
         format!("ws://{}{path}", self.addr)
