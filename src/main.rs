@@ -10,7 +10,7 @@ use anyhow::{Context, bail};
 use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
-use pvsd::cull::{MethodSpec, Registry, SceneMethods, View, VisibleSet};
+use pvsd::cull::{AUTO_CHOICE, MethodSpec, Registry, SceneMethods, View, VisibleSet};
 use pvsd::eval::{EvalParams, WalkParams};
 use pvsd::geom::Camera;
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
@@ -53,6 +53,16 @@ enum Command {
     /// culled, share of wrong pixels, and a modelled frame cost with the
     /// speedup over frustum culling.
     Eval(EvalArgs),
+    /// List every method: what it is for, and, with --scene, whether that
+    /// scene supports it or why not.
+    Methods(MethodsArgs),
+}
+
+#[derive(Args, Debug)]
+struct MethodsArgs {
+    /// A .gltf or .glb scene to check each method against.
+    #[arg(long, value_name = "FILE")]
+    scene: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -208,6 +218,7 @@ fn main() -> ExitCode {
         Command::Gen(cmd) => generate(cmd),
         Command::Query(args) => query(args),
         Command::Eval(args) => eval(args),
+        Command::Methods(args) => methods(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -387,6 +398,29 @@ fn query(args: QueryArgs) -> anyhow::Result<()> {
             .collect();
         println!("{}", names.join("\n"));
     }
+    Ok(())
+}
+
+fn methods(args: MethodsArgs) -> anyhow::Result<()> {
+    let registry = Registry::standard();
+    let prepared = match &args.scene {
+        Some(path) => Some(SceneMethods::prepare(load_scene(path)?)),
+        None => None,
+    };
+    for entry in registry.entries() {
+        println!("{:<18} {}", entry.name, entry.purpose);
+        if let Some(m) = &prepared {
+            let id = &m.scene().id;
+            match m.unsupported().iter().find(|u| u.method == entry.name) {
+                None => println!("{:<18} supported by {id}", ""),
+                Some(u) => println!("{:<18} not supported by {id}: {}", "", u.reason),
+            }
+        }
+    }
+    println!(
+        "{:<18} answers with {AUTO_CHOICE} (auto does not measure scenes yet)",
+        "auto"
+    );
     Ok(())
 }
 

@@ -33,6 +33,7 @@ fn every_command_explains_itself() {
         &["gen", "--help"],
         &["gen", "city", "--help"],
         &["query", "--help"],
+        &["methods", "--help"],
     ] {
         let (ok, out, _) = run(args);
         assert!(ok, "{args:?}");
@@ -93,6 +94,32 @@ fn gen_then_query() {
         office.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
+}
+
+#[test]
+fn methods_lists_the_registry_and_what_a_scene_supports() {
+    let (ok, out, err) = run(&["methods"]);
+    assert!(ok, "{err}");
+    for name in [
+        "frustum",
+        "occlusion_tree",
+        "supporting_planes",
+        "horizon",
+        "ddo",
+        "gpu",
+        "raster",
+        "auto",
+    ] {
+        assert!(out.lines().any(|l| l.starts_with(name)), "{name}: {out}");
+    }
+    let saw = shared_scene_path("2CylinderEngine");
+    let (ok, out, err) = run(&["methods", "--scene", saw.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(out.contains("supported by 2CylinderEngine"), "{out}");
+    assert!(
+        out.contains("not supported by 2CylinderEngine: not built yet: GPU occlusion queries"),
+        "{out}"
+    );
 }
 
 #[test]

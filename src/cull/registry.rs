@@ -17,10 +17,7 @@ use std::sync::{Arc, OnceLock};
 
 use super::device::DeviceQueue;
 use super::frustum::FrustumCulling;
-use super::horizon::HorizonCulling;
 use super::occluder::Occluders;
-use super::occlusion_tree::OcclusionTreeCulling;
-use super::supporting_planes::SupportingPlanesCulling;
 use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodSpec};
 use super::{CullError, CullJob, View, VisibleSet};
 use crate::scene::Scene;
@@ -129,61 +126,15 @@ pub struct Registry {
 pub const AUTO_CHOICE: &str = "frustum";
 
 impl Registry {
-    /// Every method of DESIGN's list; those not built yet say so.
+    /// Every method of DESIGN's list, in its order; those not built yet
+    /// say so. A method's entry lives in its folder.
     pub fn standard() -> Registry {
-        let not_built = |name, purpose, why: fn(&Preparation<'_>) -> _| MethodEntry {
-            name,
-            purpose,
-            checked_with: &[],
-            build: why,
-        };
         Registry {
             entries: vec![
-                MethodEntry {
-                    name: "frustum",
-                    purpose: "view-frustum culling over the kd-tree; the exact in-frustum set, and the fallback of every other method",
-                    checked_with: &[],
-                    build: |p| {
-                        Ok(Arc::new(FrustumCulling::new(
-                            p.scene().clone(),
-                            p.kd_tree(),
-                        )))
-                    },
-                },
-                MethodEntry {
-                    name: "occlusion_tree",
-                    purpose: "occlusion trees over k occluders picked per view (Bittner et al.): interiors and cities with large walls",
-                    checked_with: &[
-                        "variant=fse",
-                        "variant=fmc",
-                        "k=8:temporal=false:min_cost=0",
-                    ],
-                    build: |p| {
-                        Ok(Arc::new(OcclusionTreeCulling::new(
-                            p.scene().clone(),
-                            p.kd_tree(),
-                            p.require_occluders()?,
-                        )))
-                    },
-                },
-                MethodEntry {
-                    name: "supporting_planes",
-                    purpose: "supporting and separating planes against large occluders, cached between frames (Coorg & Teller)",
-                    checked_with: &["k=8:temporal=false:min_cost=0"],
-                    build: |p| {
-                        Ok(Arc::new(SupportingPlanesCulling::new(
-                            p.scene().clone(),
-                            p.kd_tree(),
-                            p.require_occluders()?,
-                        )))
-                    },
-                },
-                MethodEntry {
-                    name: "horizon",
-                    purpose: "occlusion horizons over convex vertical prisms (Downs et al.): cities standing on a ground",
-                    checked_with: &["columns=64"],
-                    build: |p| Ok(Arc::new(HorizonCulling::new(p.scene().clone())?)),
-                },
+                super::frustum::ENTRY,
+                super::occlusion_tree::ENTRY,
+                super::supporting_planes::ENTRY,
+                super::horizon::ENTRY,
                 not_built(
                     "ddo",
                     "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
@@ -219,6 +170,17 @@ impl Registry {
     /// Whether `name` is one of its methods.
     pub fn knows(&self, name: &str) -> bool {
         self.entries.iter().any(|e| e.name == name)
+    }
+}
+
+/// The entry of a method of DESIGN's list that is not built yet: listed,
+/// with why, as unsupported by every scene.
+fn not_built(name: &'static str, purpose: &'static str, why: Build) -> MethodEntry {
+    MethodEntry {
+        name,
+        purpose,
+        checked_with: &[],
+        build: why,
     }
 }
 

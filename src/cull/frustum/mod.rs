@@ -16,12 +16,27 @@ use std::sync::Arc;
 
 use super::subtree::frustum_cull_subtree;
 use super::{
-    CullCounters, CullError, CullMethod, Execution, InFrustum, MethodError, MethodOptions,
-    Occludees, View, VisibleSet,
+    CullCounters, CullError, CullMethod, Culler, Execution, InFrustum, MethodEntry, MethodError,
+    MethodOptions, Occludees, Preparation, View, VisibleSet,
 };
 use crate::geom::{ALL_PLANES, Frustum};
 use crate::scene::Scene;
 use crate::spatial::KdTree;
+
+/// The method's registry entry.
+pub const ENTRY: MethodEntry = MethodEntry {
+    name: "frustum",
+    purpose: "view-frustum culling over the kd-tree; the exact in-frustum set, and the fallback of every other method",
+    checked_with: &[],
+    build,
+};
+
+fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
+    Ok(Arc::new(FrustumCulling::new(
+        p.scene().clone(),
+        p.kd_tree(),
+    )))
+}
 
 /// Hierarchical frustum culling; stateless, conservative, no options.
 pub struct FrustumCulling {

@@ -50,8 +50,8 @@ pub use prism::{Prism, Prisms};
 pub use tree::{Horizon, Opening};
 
 use crate::cull::{
-    CullCounters, CullError, CullMethod, InFrustum, MethodError, MethodOptions, Occludees, Ranged,
-    View, VisibleSet,
+    CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
+    MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
 use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
 use crate::scene::Scene;
@@ -98,6 +98,18 @@ const PIXEL_SLACK: f64 = 1e-6;
 /// The window of screen x when the frustum reaches the eye's vertical plane
 /// (about ±89°): wider views fall back to frustum culling at the sides.
 const WIDE_WINDOW: f64 = 64.0;
+
+/// The method's registry entry; the table checks a coarse horizon too.
+pub const ENTRY: MethodEntry = MethodEntry {
+    name: "horizon",
+    purpose: "occlusion horizons over convex vertical prisms (Downs et al.): cities standing on a ground",
+    checked_with: &["columns=64"],
+    build,
+};
+
+fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
+    Ok(Arc::new(HorizonCulling::new(p.scene().clone())?))
+}
 
 /// Occlusion horizons over a quadtree of the scene, with the prisms proven
 /// inside its objects.

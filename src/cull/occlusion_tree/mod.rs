@@ -25,11 +25,33 @@ use super::occlusion::hierarchy::{self, Target};
 use super::occlusion::tolerance::plane_tolerance;
 use super::occlusion::{Selection, SelectionOptions, visible_parts};
 use super::{
-    CullCounters, CullError, CullMethod, MethodError, MethodOptions, Occludees, View, VisibleSet,
+    CullCounters, CullError, CullMethod, Culler, MethodEntry, MethodError, MethodOptions,
+    Occludees, Preparation, View, VisibleSet,
 };
 use crate::geom::Aabb;
 use crate::scene::Scene;
 use crate::spatial::KdTree;
+
+/// The method's registry entry; the table checks every variant and a
+/// small, history-free pick.
+pub const ENTRY: MethodEntry = MethodEntry {
+    name: "occlusion_tree",
+    purpose: "occlusion trees over k occluders picked per view (Bittner et al.): interiors and cities with large walls",
+    checked_with: &[
+        "variant=fse",
+        "variant=fmc",
+        "k=8:temporal=false:min_cost=0",
+    ],
+    build,
+};
+
+fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
+    Ok(Arc::new(OcclusionTreeCulling::new(
+        p.scene().clone(),
+        p.kd_tree(),
+        p.require_occluders()?,
+    )))
+}
 
 /// Which of Table 2's methods.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

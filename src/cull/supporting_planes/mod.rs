@@ -29,11 +29,28 @@ use super::occlusion::hierarchy::{self, Target};
 use super::occlusion::tolerance::{plane_tolerance, too_small_to_trust};
 use super::occlusion::{Selection, SelectionOptions, Visibility, visible_parts};
 use super::{
-    CullCounters, CullError, CullMethod, MethodError, MethodOptions, Occludees, View, VisibleSet,
+    CullCounters, CullError, CullMethod, Culler, MethodEntry, MethodError, MethodOptions,
+    Occludees, Preparation, View, VisibleSet,
 };
 use crate::geom::{Aabb, ConvexPolygon, Plane};
 use crate::scene::Scene;
 use crate::spatial::KdTree;
+
+/// The method's registry entry.
+pub const ENTRY: MethodEntry = MethodEntry {
+    name: "supporting_planes",
+    purpose: "supporting and separating planes against large occluders, cached between frames (Coorg & Teller)",
+    checked_with: &["k=8:temporal=false:min_cost=0"],
+    build,
+};
+
+fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
+    Ok(Arc::new(SupportingPlanesCulling::new(
+        p.scene().clone(),
+        p.kd_tree(),
+        p.require_occluders()?,
+    )))
+}
 
 /// Supporting and separating planes against the selected occluders.
 pub struct SupportingPlanesCulling {
