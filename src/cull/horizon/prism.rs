@@ -45,6 +45,21 @@ pub const MAX_PRISMS: usize = 3;
 /// are not searched (detailed models: the grid would grow quadratically).
 const MAX_LINES: usize = 16;
 
+/// Prisms are shrunk by this share of their object's size (at least 8
+/// containment tolerances), so that they lie strictly inside the proven
+/// union: a smaller prism hides less, never more.
+const SHRINK: f64 = 1e-5;
+
+/// A triangle whose unit normal's vertical part is at most this is a wall
+/// candidate. Classifying only proposes cells; the coverage proof (step 4)
+/// is what a prism's soundness rests on, so a looser or tighter slope
+/// changes which prisms are found, never whether they are inside.
+const WALL_SLOPE: f64 = 1e-4;
+
+/// Unit normals within this of a roof's (vertical) or a wall line's axis
+/// count as aligned with it; like [`WALL_SLOPE`], only a proposal.
+const ALIGNED: f64 = 1e-7;
+
 /// A convex vertical prism from the ground level up to `top`, scene-local.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Prism {
@@ -265,7 +280,7 @@ fn object_prisms(scene: &Scene, object: &Object, ground: f64) -> Vec<Prism> {
     let magnitude = b.min.abs().max(b.max.abs()).max_element() as f64;
     let size = b.extent().max_element() as f64;
     let tol = 4.0 * f32::EPSILON as f64 * magnitude.max(size);
-    let margin = (1e-5 * size).max(8.0 * tol);
+    let margin = (SHRINK * size).max(8.0 * tol);
     let tris: Vec<[Vec3; 3]> = (object.triangles.start..object.triangles.end)
         .filter(|t| !object.see_through.iter().any(|r| r.contains(t)))
         .map(|t| scene.triangles()[t as usize])
@@ -286,12 +301,12 @@ fn object_prisms(scene: &Scene, object: &Object, ground: f64) -> Vec<Prism> {
                 .as_dvec3()
                 .cross((t[2] - t[0]).as_dvec3())
                 .length();
-            (n.y.abs() <= 1e-4).then(|| (h.normalize(), t, area))
+            (n.y.abs() <= WALL_SLOPE).then(|| (h.normalize(), t, area))
         })
         .collect();
     let mut heights: Vec<f64> = tris
         .iter()
-        .filter(|t| normal(t).is_some_and(|n| n.y.abs() >= 1.0 - 1e-7))
+        .filter(|t| normal(t).is_some_and(|n| n.y.abs() >= 1.0 - ALIGNED))
         .map(|t| t.iter().map(|v| v.y as f64).sum::<f64>() / 3.0)
         .filter(|&y| y > ground + tol)
         .collect();
@@ -310,7 +325,7 @@ fn object_prisms(scene: &Scene, object: &Object, ground: f64) -> Vec<Prism> {
     let lines = |axis: DVec2| -> Option<Vec<f64>> {
         let mut v: Vec<f64> = vertical
             .iter()
-            .filter(|(n, _, _)| n.dot(axis).abs() >= 1.0 - 1e-7)
+            .filter(|(n, _, _)| n.dot(axis).abs() >= 1.0 - ALIGNED)
             .map(|(_, t, _)| {
                 t.iter()
                     .map(|p| axis.dot(DVec2::new(p.x as f64, p.z as f64)))

@@ -79,6 +79,19 @@ const OFFSET_QUANTUM: f64 = 1e-3;
 /// `f32` ulps (of the largest coordinate) of its plane: see [`is_planar`].
 const PLANARITY_ULPS: f64 = 2.0;
 
+/// A corner counts as convex when its turn against the loop's normal is
+/// above minus this share of its edges' lengths: a union bent inwards by
+/// no more than rounding is still taken as convex. Its edge planes then
+/// bound a region inside the union of the object's own triangles, so its
+/// shadow is never larger than the real one.
+const TURN_TOLERANCE: f64 = 1e-9;
+
+/// A corner whose edges' cross product is under this share of their
+/// lengths' product does not turn and is dropped: moving the outline by
+/// 1e-12 of an edge is a thousand times below the plane tolerance
+/// (`occlusion::tolerance`) every shadow test already allows for.
+const COLLINEAR: f64 = 1e-12;
+
 /// Groups triangles by plane, then merges triangles that share an edge
 /// exactly while the union stays convex.
 fn merge_coplanar(tris: &[[Vec3; 3]]) -> Vec<ConvexPolygon> {
@@ -234,7 +247,7 @@ fn is_convex(loop_: &[Vec3]) -> bool {
     (0..n).all(|i| {
         let (e1, e2) = (v(i + 1) - v(i), v(i + 2) - v(i + 1));
         let turn = e1.cross(e2);
-        let tol = 1e-9 * e1.length() * e2.length();
+        let tol = TURN_TOLERANCE * e1.length() * e2.length();
         turn.dot(normal) / scale >= -tol && (turn.length() > tol || e1.dot(e2) > 0.0)
     })
 }
@@ -246,7 +259,7 @@ fn drop_collinear(loop_: &[Vec3]) -> Vec<DVec3> {
     (0..n)
         .filter(|&i| {
             let (a, b, c) = (v(i + n - 1), v(i), v(i + 1));
-            (b - a).cross(c - b).length() > 1e-12 * (b - a).length() * (c - b).length()
+            (b - a).cross(c - b).length() > COLLINEAR * (b - a).length() * (c - b).length()
         })
         .map(v)
         .collect()

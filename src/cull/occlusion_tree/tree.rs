@@ -535,7 +535,7 @@ fn flag_on_plane(p: &Flagged, d: &[f64], sign: f64, eps: f64) -> Flagged {
 /// plane of its own: the path's plane bounds the cell at least as tightly.
 /// An edge even slightly inside the cell keeps its own plane.
 fn on_or_outside(d: f64, sign: f64, eps: f64) -> bool {
-    d * sign <= 1e-3 * eps
+    d * sign <= SLIVER_FLOOR * eps
 }
 
 /// A stack of node indices on the call stack, spilling to the heap only
