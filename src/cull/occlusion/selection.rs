@@ -8,7 +8,7 @@ use glam::DVec3;
 use super::Visibility;
 use super::hierarchy::{self, HierarchyParams};
 use crate::cull::occluder::Occluders;
-use crate::cull::{CullCounters, MethodError, OptionReader, Ranged, View, VisibleSet};
+use crate::cull::{CullCounters, MethodError, Occludees, OptionReader, Ranged, View, VisibleSet};
 use crate::geom::{ALL_PLANES, Aabb, Side};
 use crate::scene::Scene;
 use crate::spatial::{KdTree, NodeKind};
@@ -171,7 +171,9 @@ impl Selection {
     }
 
     /// Culls `view` over the kd-tree with `test` (the method's occlusion
-    /// test), then picks the next frame's occluders from the leaves it saw.
+    /// test), tests the dynamic `occludees` with it too, then picks the
+    /// next frame's occluders from the leaves it saw.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn cull(
         &mut self,
         tree: &KdTree,
@@ -180,6 +182,7 @@ impl Selection {
         view: &View,
         test: &mut dyn FnMut(hierarchy::Target, &Aabb) -> Visibility,
         out: &mut VisibleSet,
+        occludees: &mut Occludees,
     ) -> CullCounters {
         let counters = hierarchy::cull(
             tree,
@@ -191,6 +194,7 @@ impl Selection {
             out,
             &mut self.leaves,
         );
+        hierarchy::test_occludees(occludees, test);
         self.remember(tree, occluders, view.eye());
         counters
     }

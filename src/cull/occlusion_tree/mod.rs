@@ -21,7 +21,7 @@ use std::sync::Arc;
 pub use tree::{LeafTest, OcclusionTree};
 
 use super::occluder::Occluders;
-use super::occlusion::hierarchy::{self, Target};
+use super::occlusion::hierarchy::Target;
 use super::occlusion::tolerance::plane_tolerance;
 use super::occlusion::{Selection, SelectionOptions, visible_parts};
 use super::{
@@ -165,8 +165,8 @@ impl CullMethod for OcclusionTreeCulling {
             view,
             &mut test,
             out,
+            occludees,
         );
-        hierarchy::test_occludees(occludees, &mut test);
         Ok(counters)
     }
 

@@ -25,7 +25,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use super::occluder::Occluders;
-use super::occlusion::hierarchy::{self, Target};
+use super::occlusion::hierarchy::Target;
 use super::occlusion::tolerance::{plane_tolerance, too_small_to_trust};
 use super::occlusion::{Selection, SelectionOptions, Visibility, visible_parts};
 use super::{
@@ -336,8 +336,8 @@ impl CullMethod for SupportingPlanesCulling {
             view,
             &mut test,
             out,
+            occludees,
         );
-        hierarchy::test_occludees(occludees, &mut test);
         Ok(counters)
     }
 
