@@ -69,7 +69,7 @@ async fn health_scenes_and_objects() {
         scenes[0]
             .unsupported
             .values()
-            .all(|why| why.starts_with("not built yet")),
+            .all(|why| why == pvsd::cull::NOT_BUILT),
         "{:?}",
         scenes[0].unsupported
     );

@@ -138,17 +138,17 @@ impl Registry {
                 not_built(
                     "ddo",
                     "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
-                    |_| Err("not built yet: directional discretized occluders are issue 15".into()),
+                    |_| Err(NOT_BUILT.into()),
                 ),
                 not_built(
                     "gpu",
                     "hardware occlusion queries on a Vulkan device, lavapipe on the CPU (Tai & Hsu)",
-                    |_| Err("not built yet: GPU occlusion queries are issue 14".into()),
+                    |_| Err(NOT_BUILT.into()),
                 ),
                 not_built(
                     "raster",
                     "a conservative software depth buffer on the CPU (against Masked Occlusion Culling)",
-                    |_| Err("not built yet: software rasterized occlusion is issue 16".into()),
+                    |_| Err(NOT_BUILT.into()),
                 ),
             ],
         }
@@ -172,6 +172,10 @@ impl Registry {
         self.entries.iter().any(|e| e.name == name)
     }
 }
+
+/// The reason every scene gives for a method of DESIGN's list that pvsd
+/// does not have yet.
+pub const NOT_BUILT: &str = "not built yet";
 
 /// The entry of a method of DESIGN's list that is not built yet: listed,
 /// with why, as unsupported by every scene.
