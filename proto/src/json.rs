@@ -149,6 +149,14 @@ pub struct Stats {
     pub in_frustum: Option<u64>,
     /// Objects in the answer.
     pub visible: u64,
+    /// Only when the asked method could not answer this view (e.g. a lost
+    /// device): the method that answered instead, e.g. `frustum`, whose
+    /// answer is conservative too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback: Option<String>,
+    /// Only with `fallback`: why the asked method could not answer.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback_reason: Option<String>,
 }
 
 /// The answer of `POST /scenes/{id}/visible`.
@@ -270,4 +278,37 @@ pub struct WalkthroughInfo {
     pub method: String,
     /// Its users, by id.
     pub users: Vec<UserInfo>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stats(fallback: Option<(&str, &str)>) -> Stats {
+        Stats {
+            method: "gpu".into(),
+            cull_us: 1.5,
+            nodes_tested: 3,
+            in_frustum: None,
+            visible: 2,
+            fallback: fallback.map(|f| f.0.into()),
+            fallback_reason: fallback.map(|f| f.1.into()),
+        }
+    }
+
+    #[test]
+    fn a_fallback_is_said_only_when_there_was_one() {
+        let plain = serde_json::to_value(stats(None)).unwrap();
+        assert_eq!(
+            plain,
+            serde_json::json!({"method": "gpu", "cull_us": 1.5, "nodes_tested": 3,
+                "in_frustum": null, "visible": 2})
+        );
+        let fell = stats(Some(("frustum", "device lost")));
+        let json = serde_json::to_value(&fell).unwrap();
+        assert_eq!(json["fallback"], "frustum");
+        assert_eq!(json["fallback_reason"], "device lost");
+        assert_eq!(serde_json::from_value::<Stats>(json).unwrap(), fell);
+        assert_eq!(serde_json::from_value::<Stats>(plain).unwrap(), stats(None));
+    }
 }

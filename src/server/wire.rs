@@ -133,6 +133,9 @@ impl From<CullStats> for Stats {
             nodes_tested: s.nodes_tested,
             in_frustum: s.in_frustum,
             visible: s.visible,
+            // Set once methods can fail at run time and fall back (issue 13).
+            fallback: None,
+            fallback_reason: None,
         }
     }
 }
