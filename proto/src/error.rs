@@ -6,15 +6,20 @@
 //! and names what was wrong (`eye[1] is NaN`).
 
 use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
 
-/// Defines [`ErrorCode`] from one list of `Variant = "wire_name"`, so the
-/// serde name, [`ErrorCode::as_str`] and [`ErrorCode::ALL`] cannot disagree.
+/// Defines [`ErrorCode`] from one list of `Variant = "wire_name"`, with
+/// [`ErrorCode::as_str`] and [`ErrorCode::ALL`]. The wire name is the
+/// variant's in snake case (`rename_all`, which serde and the OpenAPI
+/// derive both read); `codes_travel_as_their_names` checks that it is
+/// the name written here.
 macro_rules! error_codes {
     ($($(#[$doc:meta])* $variant:ident = $code:literal,)*) => {
         /// Why a request was refused.
-        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+        #[serde(rename_all = "snake_case")]
         pub enum ErrorCode {
-            $($(#[$doc])* #[serde(rename = $code)] $variant,)*
+            $($(#[$doc])* $variant,)*
         }
 
         impl ErrorCode {
@@ -77,14 +82,15 @@ impl std::fmt::Display for ErrorCode {
 }
 
 /// The body of every 4xx and 5xx answer.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[schema(as = Error)]
 pub struct ErrorBody {
     /// What went wrong.
     pub error: ErrorDetail,
 }
 
-/// The `error` of an [`ErrorBody`].
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+/// The `error` of an error body.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 pub struct ErrorDetail {
     /// Stable and machine-readable.
     pub code: ErrorCode,

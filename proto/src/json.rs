@@ -1,6 +1,11 @@
 //! The JSON bodies of the HTTP API (DESIGN "HTTP API"): what clients send
 //! and what the server answers, field for field.
 //!
+//! Each type derives `ToSchema` next to its serde attributes, so the OpenAPI
+//! document ([`crate::openapi`]) is read off these declarations and a field
+//! cannot change without its schema. Doc comments become the schema's
+//! descriptions: they are written for client authors.
+//!
 //! The conversions to and from the server's own types (cameras, method
 //! specs, cull statistics) live in the server (`src/server/wire.rs`); this
 //! crate knows nothing of geometry.
@@ -8,6 +13,9 @@
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Deserializer, Serialize};
+use utoipa::openapi::schema::{ObjectBuilder, Type};
+use utoipa::openapi::{RefOr, Schema};
+use utoipa::{PartialSchema, ToSchema};
 
 /// A number that may also arrive as `"NaN"`, `"Infinity"` or `"-Infinity"`
 /// (the server rewrites those bare tokens into these strings), so that
@@ -45,35 +53,82 @@ impl<'de> Deserialize<'de> for Number {
     }
 }
 
+/// In the document a `Number` is a number: the non-finite spellings are
+/// read only to be refused by name.
+impl PartialSchema for Number {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::Number)
+            .description(Some(
+                "A finite number (NaN or an infinity is refused, naming the field)",
+            ))
+            .into()
+    }
+}
+
+impl ToSchema for Number {}
+
+/// One value of a method's `options`: a string, a number or a boolean
+/// (`{"k": 32, "variant": "fme"}`). Documentation only: `options` are kept
+/// as JSON and the server refuses other values by name.
+pub struct OptionValue;
+
+impl PartialSchema for OptionValue {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(utoipa::openapi::schema::SchemaType::from_iter([
+                Type::String,
+                Type::Number,
+                Type::Boolean,
+            ]))
+            .description(Some("A method option's value"))
+            .into()
+    }
+}
+
+impl ToSchema for OptionValue {}
+
 /// A view as clients send it (DESIGN: "A **view**"): the body of
 /// `POST /scenes/{id}/visible`, of `POST /sessions/{sid}/frames` and of
 /// each WebSocket text message. Coordinates are in the scene's units
 /// (glTF: metres, +Y up). Absent or `null` fields take their defaults.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
+#[schema(as = View)]
 pub struct ViewRequest {
     /// Eye position, world coordinates.
+    #[schema(min_items = 3, max_items = 3)]
     pub eye: [Number; 3],
     /// Viewing direction (need not be unit length; not zero).
+    #[schema(min_items = 3, max_items = 3)]
     pub forward: [Number; 3],
     /// Up direction, not parallel to `forward` (default +Y).
+    #[schema(min_items = 3, max_items = 3, default = json!([0, 1, 0]))]
     pub up: Option<[Number; 3]>,
     /// Vertical field of view, degrees, in (0, 180) (default 60).
+    // A `Number` is a number in the document; spelled `f64` here so that
+    // the range reaches the schema (a `$ref` carries no bounds).
+    #[schema(value_type = Option<f64>, default = 60, exclusive_minimum = 0, exclusive_maximum = 180)]
     pub fov_y_deg: Option<Number>,
     /// Width / height (default: the viewport's, else 1.6).
     pub aspect: Option<Number>,
     /// Near plane distance, above 0 (default 0.1).
+    #[schema(value_type = Option<f64>, default = 0.1, exclusive_minimum = 0)]
     pub near: Option<Number>,
     /// Far plane distance, beyond `near` (default 10000).
+    #[schema(default = 10000)]
     pub far: Option<Number>,
     /// Image size in pixels, width and height (default 1024 × 640).
+    #[schema(min_items = 2, max_items = 2, default = json!([1024, 640]))]
     pub viewport: Option<[u32; 2]>,
     /// Culling method: one that `GET /scenes` lists for the scene, or
     /// `auto` (default). Session frames refuse it: the session chose.
+    #[schema(default = "auto")]
     pub method: Option<String>,
     /// The method's knobs, e.g. `{"k": 32, "variant": "fme"}`; an unknown
     /// one is refused by name. Session frames refuse them.
     #[serde(default)]
+    #[schema(value_type = BTreeMap<String, OptionValue>)]
     pub options: serde_json::Map<String, serde_json::Value>,
     /// Session frames only (refused on `/scenes/{id}/visible`): the frame
     /// the client holds; the answer is the delta against it if the session
@@ -83,29 +138,33 @@ pub struct ViewRequest {
 }
 
 /// The body of `POST /sessions` and `POST /walkthroughs`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SessionRequest {
     /// The scene id.
     pub scene: String,
     /// Culling method (default `auto`).
+    #[schema(default = "auto")]
     pub method: Option<String>,
     /// The method's knobs, as in a view.
     #[serde(default)]
+    #[schema(value_type = BTreeMap<String, OptionValue>)]
     pub options: serde_json::Map<String, serde_json::Value>,
 }
 
 /// A box in world coordinates.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct Bounds {
     /// Smallest corner.
+    #[schema(min_items = 3, max_items = 3)]
     pub min: [f64; 3],
     /// Largest corner.
+    #[schema(min_items = 3, max_items = 3)]
     pub max: [f64; 3],
 }
 
 /// One entry of `GET /scenes`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct SceneInfo {
     /// The scene id: its file stem (`city1k.glb` → `city1k`).
     pub id: String,
@@ -114,8 +173,10 @@ pub struct SceneInfo {
     /// Number of triangles.
     pub triangles: usize,
     /// World bounds; `null` for a scene without triangles.
+    #[schema(required = true)]
     pub bounds: Option<Bounds>,
     /// The up axis.
+    #[schema(min_items = 3, max_items = 3)]
     pub up: [f32; 3],
     /// Methods it supports (`auto` is always accepted besides).
     pub methods: Vec<String>,
@@ -125,18 +186,19 @@ pub struct SceneInfo {
 }
 
 /// One entry of `GET /scenes/{id}/objects`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct ObjectInfo {
     /// The object id.
     pub id: u32,
     /// Its name.
     pub name: String,
     /// World bounds; `null` for an object with no triangles.
+    #[schema(required = true)]
     pub bounds: Option<Bounds>,
 }
 
 /// The `stats` of an answer: what it cost.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct Stats {
     /// The method that answered (`auto` resolved).
     pub method: String,
@@ -146,6 +208,7 @@ pub struct Stats {
     pub nodes_tested: u64,
     /// Objects in the frustum; `null` when the method does not count them
     /// (occlusion methods drop hidden subtrees uncounted).
+    #[schema(required = true)]
     pub in_frustum: Option<u64>,
     /// Objects in the answer.
     pub visible: u64,
@@ -153,20 +216,23 @@ pub struct Stats {
     /// device): the method that answered instead, e.g. `frustum`, whose
     /// answer is conservative too.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
     pub fallback: Option<String>,
     /// Only with `fallback`: why the asked method could not answer.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
     pub fallback_reason: Option<String>,
 }
 
 /// The answer of `POST /scenes/{id}/visible`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct VisibleResponse {
     /// Possibly visible object ids, ascending.
     pub visible: Vec<u32>,
     /// Per id of `visible`, an upper bound of the pixels it covers; only
     /// when the method was asked for them (`horizon` with `areas=true`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
     pub areas: Option<Vec<f64>>,
     /// What it cost.
     pub stats: Stats,
@@ -191,7 +257,7 @@ impl VisibleResponse {
 }
 
 /// The answer of `POST /sessions`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct SessionCreated {
     /// The session id: 128 random bits, 32 hex digits; whoever holds it
     /// owns the session.
@@ -203,11 +269,13 @@ pub struct SessionCreated {
 /// A session frame: the change from `base` to this frame's visible set
 /// (JSON, or `application/x-pvs` as `proto/wire-format.md` gives it).
 /// Apply `removed`, then `added`, to the set held for `base`.
-#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, Eq, ToSchema)]
+#[schema(as = Frame)]
 pub struct FrameResponse {
     /// This frame's number: 1 for the session's first, then one more each frame.
     pub frame: u64,
     /// The frame the delta is against; `null`: `added` is the whole set.
+    #[schema(required = true)]
     pub base: Option<u64>,
     /// Ids visible now and not in `base`, ascending.
     pub added: Vec<u32>,
@@ -216,6 +284,7 @@ pub struct FrameResponse {
     /// In a walkthrough only: the other users whose avatars may be
     /// visible, ascending.
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
     pub users_visible: Option<Vec<String>>,
 }
 
@@ -228,7 +297,7 @@ impl FrameResponse {
 }
 
 /// The answer of `POST /walkthroughs`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct WalkthroughCreated {
     /// The walkthrough id.
     pub walkthrough: String,
@@ -237,7 +306,7 @@ pub struct WalkthroughCreated {
 }
 
 /// The answer of `POST /walkthroughs/{wid}/users`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct UserJoined {
     /// The user's id, as others see it in `users_visible`.
     pub user: String,
@@ -246,29 +315,33 @@ pub struct UserJoined {
 }
 
 /// Where a user last stood (world coordinates).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct Pose {
     /// The eye.
+    #[schema(min_items = 3, max_items = 3)]
     pub eye: [f64; 3],
     /// The viewing direction.
+    #[schema(min_items = 3, max_items = 3)]
     pub forward: [f64; 3],
     /// The up direction.
+    #[schema(min_items = 3, max_items = 3)]
     pub up: [f64; 3],
 }
 
 /// One user of `GET /walkthroughs/{wid}`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct UserInfo {
     /// The user id.
     pub user: String,
     /// The last frame's camera; `null` before the first frame.
+    #[schema(required = true)]
     pub pose: Option<Pose>,
     /// Frames answered.
     pub frames: u64,
 }
 
 /// The answer of `GET /walkthroughs/{wid}`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct WalkthroughInfo {
     /// The walkthrough id.
     pub walkthrough: String,

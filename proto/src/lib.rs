@@ -11,8 +11,11 @@
 //!   frames, specified in `proto/wire-format.md`.
 //! - [`delta`]: frame deltas (`diff`) and the encoded id sets a session
 //!   keeps (`IdSet`).
+//! - [`openapi`]: the OpenAPI document, generated from the types above;
+//!   `proto/openapi.json` is its committed copy.
 
 pub mod delta;
 pub mod error;
 pub mod json;
+pub mod openapi;
 pub mod xpvs;
