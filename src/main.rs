@@ -16,8 +16,8 @@ use pvsd::geom::Camera;
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
 use pvsd::scene::{Scene, load_path, load_slice};
 use pvsd::server::config::ServeConfig;
-use pvsd::server::wire::{StatsBody, VisibleResponse};
 use pvsd::server::{AppState, shutdown_signal};
+use pvsd_proto::json::{Stats, VisibleResponse};
 
 /// pvsd: a visibility server. It holds 3D scenes in memory and answers, for
 /// a camera, which objects could be visible from it (a potentially visible set).
@@ -376,7 +376,7 @@ fn query(args: QueryArgs) -> anyhow::Result<()> {
         let body = VisibleResponse {
             visible: out.ids().to_vec(),
             areas: out.areas(),
-            stats: StatsBody::from(stats),
+            stats: Stats::from(stats),
         };
         println!("{}", serde_json::to_string(&body)?);
     } else {

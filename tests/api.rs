@@ -12,8 +12,8 @@ use common::{city_scene, fetch, shared_scene};
 use http_body_util::BodyExt;
 use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
 use pvsd::geom::Camera;
-use pvsd::server::wire::{ObjectInfo, SceneInfo, VisibleResponse};
 use pvsd::server::{AppState, Limits, app};
+use pvsd_proto::json::{ObjectInfo, SceneInfo, VisibleResponse};
 use serde_json::{Value, json};
 use tower::ServiceExt;
 

@@ -1,6 +1,11 @@
-//! `proto/openapi.json` says what the router does: every documented
-//! operation is served, its example answered with a documented status, and
-//! the answer fits the documented schema.
+//! The OpenAPI document says what the router does: every documented
+//! operation is served, its example fits the documented request and is
+//! answered with a documented status, and the answer fits the documented
+//! schema.
+//!
+//! The document is generated from `pvsd_proto`'s types
+//! (`pvsd_proto::openapi`); `proto/openapi.json` is its committed copy,
+//! which pvsd-proto's own test keeps equal to it.
 
 mod common;
 
@@ -13,8 +18,7 @@ use serde_json::Value;
 use tower::ServiceExt;
 
 fn spec() -> Value {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/proto/openapi.json");
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+    serde_json::from_str(&pvsd_proto::openapi::to_json()).unwrap()
 }
 
 fn resolve<'a>(spec: &'a Value, v: &'a Value) -> &'a Value {
@@ -28,7 +32,8 @@ fn resolve<'a>(spec: &'a Value, v: &'a Value) -> &'a Value {
     }
 }
 
-/// Checks `value` against the subset of JSON Schema the document uses.
+/// Checks `value` against the subset of JSON Schema the document uses
+/// (what utoipa emits for the proto types).
 fn conforms(spec: &Value, schema: &Value, value: &Value, at: &str) -> Result<(), String> {
     let schema = resolve(spec, schema);
     if let Some(options) = schema.get("oneOf").and_then(Value::as_array) {
@@ -41,6 +46,14 @@ fn conforms(spec: &Value, schema: &Value, value: &Value, at: &str) -> Result<(),
         } else {
             Err(format!("{at}: fits {fits} of oneOf"))
         };
+    }
+    for part in schema
+        .get("allOf")
+        .and_then(Value::as_array)
+        .into_iter()
+        .flatten()
+    {
+        conforms(spec, part, value, at)?;
     }
     let types: Vec<&str> = match schema.get("type") {
         Some(Value::String(t)) => vec![t.as_str()],
@@ -81,17 +94,38 @@ fn conforms(spec: &Value, schema: &Value, value: &Value, at: &str) -> Result<(),
             }
         }
         let props = schema.get("properties").and_then(Value::as_object);
+        let additional = schema.get("additionalProperties");
         for (k, v) in map {
-            match props.and_then(|p| p.get(k)) {
-                Some(s) => conforms(spec, s, v, &format!("{at}.{k}"))?,
-                None if props.is_some() => return Err(format!("{at}: '{k}' is not documented")),
-                None => {}
+            match (props.and_then(|p| p.get(k)), additional) {
+                (Some(s), _) => conforms(spec, s, v, &format!("{at}.{k}"))?,
+                (None, Some(Value::Bool(false))) => {
+                    return Err(format!("{at}: '{k}' is not allowed"));
+                }
+                (None, Some(s @ Value::Object(_))) => conforms(spec, s, v, &format!("{at}.{k}"))?,
+                // Answers say every field they send.
+                (None, _) if props.is_some() => {
+                    return Err(format!("{at}: '{k}' is not documented"));
+                }
+                (None, _) => {}
             }
         }
     }
-    if let (Value::Array(items), Some(s)) = (value, schema.get("items")) {
-        for (i, v) in items.iter().enumerate() {
-            conforms(spec, s, v, &format!("{at}[{i}]"))?;
+    if let Value::Array(items) = value {
+        let len = items.len() as u64;
+        if let Some(min) = schema.get("minItems").and_then(Value::as_u64) {
+            if len < min {
+                return Err(format!("{at}: {len} items, fewer than {min}"));
+            }
+        }
+        if let Some(max) = schema.get("maxItems").and_then(Value::as_u64) {
+            if len > max {
+                return Err(format!("{at}: {len} items, more than {max}"));
+            }
+        }
+        if let Some(s) = schema.get("items") {
+            for (i, v) in items.iter().enumerate() {
+                conforms(spec, s, v, &format!("{at}[{i}]"))?;
+            }
         }
     }
     Ok(())
@@ -151,6 +185,10 @@ async fn every_documented_operation_is_served_as_documented() {
                 uri = uri.replace("{wid}", &wid);
             }
             let example = op.pointer("/requestBody/content/application~1json/example");
+            if let Some(e) = example {
+                let schema = &op["requestBody"]["content"]["application/json"]["schema"];
+                conforms(&spec, schema, e, &format!("{method} {path} example")).unwrap();
+            }
             let body = example.map_or_else(Body::empty, |e| Body::from(e.to_string()));
             let req = Request::builder()
                 .method(method.to_uppercase().as_str())
@@ -219,4 +257,26 @@ fn the_checker_can_fail() {
     );
     let extra = serde_json::json!({"method": "f", "cull_us": 1, "nodes_tested": 1, "in_frustum": 1, "visible": 1, "x": 1});
     assert!(conforms(&spec, stats, &extra, "stats").is_err());
+    let fell = serde_json::json!({"method": "frustum", "cull_us": 1.0, "nodes_tested": 1,
+        "in_frustum": null, "visible": 1, "fallback": "frustum", "fallback_reason": "device lost"});
+    conforms(&spec, stats, &fell, "stats").unwrap();
+    let bad_fallback = serde_json::json!({"method": "f", "cull_us": 1, "nodes_tested": 1,
+        "in_frustum": 1, "visible": 1, "fallback": null});
+    assert!(conforms(&spec, stats, &bad_fallback, "stats").is_err());
+    let schemas = &spec["components"]["schemas"];
+    let short = serde_json::json!({"min": [0, 0], "max": [1, 1, 1]});
+    assert!(
+        conforms(&spec, &schemas["Bounds"], &short, "bounds")
+            .unwrap_err()
+            .contains("fewer than 3")
+    );
+    let view = serde_json::json!({"eye": [0, 1, 0], "forward": [1, 0, 0], "fov": 60});
+    assert!(
+        conforms(&spec, &schemas["View"], &view, "view")
+            .unwrap_err()
+            .contains("'fov' is not allowed")
+    );
+    let scene = serde_json::json!({"id": "c", "objects": 1, "triangles": 1, "bounds": null,
+        "up": [0, 1, 0], "methods": [], "unsupported": {"horizon": 3}});
+    assert!(conforms(&spec, &schemas["SceneInfo"], &scene, "scene").is_err());
 }

@@ -17,9 +17,9 @@ use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::geom::Camera;
 use pvsd::scene::{Scene, SceneBuilder};
 use pvsd::server::walkthrough::avatar;
-use pvsd::server::wire::{FrameResponse, UserJoined, WalkthroughCreated, WalkthroughInfo};
 use pvsd::server::{Limits, SessionLimits};
 use pvsd::truth::Truth;
+use pvsd_proto::json::{FrameResponse, UserJoined, WalkthroughCreated, WalkthroughInfo};
 use serde_json::json;
 
 /// Flat ground at y = 0 and one wall, x 20–21, z −10–10, 6 m high, both

@@ -8,8 +8,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
-use pvsd::server::binary::{self, Message as PvsMessage};
-use pvsd::server::wire::{Bounds, FrameResponse, SessionCreated};
+use pvsd_proto::json::{Bounds, FrameResponse, SessionCreated};
+use pvsd_proto::xpvs::{self, Message as PvsMessage};
 use serde_json::{Map, Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
@@ -258,7 +258,7 @@ async fn http_user(
             let sent = body.len();
             let request = http
                 .post(url)
-                .header("accept", binary::CONTENT_TYPE)
+                .header("accept", xpvs::CONTENT_TYPE)
                 .header("content-type", "application/json")
                 .body(body);
             let answer = match request.send().await {
@@ -297,7 +297,7 @@ fn status_kind(status: u16) -> &'static str {
 
 /// Decodes an answer and, for a session, applies it.
 fn check(bytes: &[u8], session: bool, held: &Mutex<Held>) -> Result<(), &'static str> {
-    match (binary::decode(bytes).map_err(|_| "decode")?, session) {
+    match (xpvs::decode(bytes).map_err(|_| "decode")?, session) {
         (PvsMessage::Frame(f), true) => held.lock().unwrap().apply(&f),
         (PvsMessage::Visible(_), false) => Ok(()),
         _ => Err("decode"),
@@ -415,11 +415,10 @@ mod tests {
     #[test]
     fn view_bodies_are_json_the_server_reads() {
         let body = view(([1.5, -2.0, 1e7], [0.0, 0.0, 1.0]), r#","base":4"#);
-        let req: pvsd::server::wire::ViewRequest = serde_json::from_str(&body).unwrap();
-        let camera = req.camera();
-        assert_eq!(camera.eye.to_array(), [1.5, -2.0, 1e7]);
-        assert_eq!(camera.forward.to_array(), [0.0, 0.0, 1.0]);
-        assert_eq!(camera.viewport, [1024, 768]);
+        let req: pvsd_proto::json::ViewRequest = serde_json::from_str(&body).unwrap();
+        assert_eq!(req.eye.map(|n| n.0), [1.5, -2.0, 1e7]);
+        assert_eq!(req.forward.map(|n| n.0), [0.0, 0.0, 1.0]);
+        assert_eq!(req.viewport, Some([1024, 768]));
         assert_eq!(req.base, Some(4));
     }
 }

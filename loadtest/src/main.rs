@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::Parser;
-use pvsd::server::wire::SceneInfo;
+use pvsd_proto::json::SceneInfo;
 
 use client::{Mode, Plan};
 use stats::Recorder;

@@ -2,7 +2,7 @@
 //! knows a scene only through `GET /scenes`): each virtual user gets its
 //! own seeded path.
 
-use pvsd::server::wire::Bounds;
+use pvsd_proto::json::Bounds;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -2,18 +2,21 @@
 //! errors in every mode, a complete JSON report with ordered percentiles),
 //! and a deliberately slow server that shows open-loop latency is counted
 //! from the schedule.
+//!
+//! loadtest shares only `pvsd-proto` with the server, so the real pvsd is
+//! its binary, run as an operator would (`pvsd gen`, `pvsd serve`); the
+//! test builds it first with the cargo that runs the tests (a no-op when it
+//! is fresh), so it is never a stale one.
 
-use std::path::Path;
-use std::process::Command;
-use std::sync::Arc;
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::time::Duration;
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
 
 use axum::Json;
 use axum::routing::{get, post};
-use pvsd::scene::generate::{CityOptions, city};
-use pvsd::scene::load_slice;
-use pvsd::server::{AppState, Limits};
 use serde_json::{Value, json};
 
 /// Serves `router` on a loopback port from a thread of its own (the
@@ -31,14 +34,104 @@ fn serve(router: axum::Router) -> String {
     format!("http://{}", rx.recv().unwrap())
 }
 
-fn pvsd_server() -> String {
-    let doc = city(&CityOptions {
-        buildings: 100,
-        ..CityOptions::default()
-    });
-    let scene = load_slice("city", &doc.to_glb(), None, Path::new("city.glb")).unwrap();
-    let state = AppState::new(vec![Arc::new(scene)], Limits::default()).unwrap();
-    serve(pvsd::server::app(state))
+/// The `pvsd` binary of this workspace, built (once per test run) in the
+/// profile and target directory of this test.
+fn pvsd_binary() -> &'static Path {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| {
+        // This test runs as <target>/<profile dir>/deps/loadtest-<hash>.
+        let exe = std::env::current_exe().unwrap();
+        let profile_dir = exe.parent().and_then(Path::parent).unwrap();
+        let target_dir = profile_dir.parent().unwrap();
+        let profile = match profile_dir.file_name().and_then(|n| n.to_str()) {
+            Some("debug") | None => "dev",
+            Some(other) => other,
+        };
+        let out = Command::new(env!("CARGO"))
+            .args([
+                "build",
+                "-p",
+                "pvsd",
+                "--bin",
+                "pvsd",
+                "--message-format=json",
+            ])
+            .args(["--profile", profile])
+            .arg("--target-dir")
+            .arg(target_dir)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .stderr(Stdio::piped())
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "cargo build -p pvsd failed:\n{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout)
+            .unwrap()
+            .lines()
+            .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+            .filter(|m| m["reason"] == "compiler-artifact" && m["target"]["name"] == "pvsd")
+            .find_map(|m| m["executable"].as_str().map(PathBuf::from))
+            .expect("cargo named the pvsd executable")
+    })
+}
+
+/// A `pvsd serve` process, killed when dropped.
+struct Pvsd {
+    child: Child,
+    /// Where it listens, `http://host:port`.
+    url: String,
+    /// Holds the scene file for the server's lifetime.
+    _dir: tempfile::TempDir,
+}
+
+impl Drop for Pvsd {
+    fn drop(&mut self) {
+        self.child.kill().ok();
+        self.child.wait().ok();
+    }
+}
+
+/// `pvsd serve` on a loopback port with a generated city of 100 buildings,
+/// served as `city`.
+fn pvsd_server() -> Pvsd {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("city.glb");
+    let status = Command::new(pvsd_binary())
+        .args(["gen", "city", "--buildings", "100", "-o"])
+        .arg(&scene)
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success(), "pvsd gen city failed");
+    let mut child = Command::new(pvsd_binary())
+        .args(["serve", "--addr", "127.0.0.1:0", "--scene"])
+        .arg(&scene)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let addr = loop {
+        assert!(
+            Instant::now() < deadline,
+            "pvsd serve said no 'listening on'"
+        );
+        let line = lines.next().expect("pvsd serve exited early").unwrap();
+        if let Some(rest) = line.split("listening on http://").nth(1) {
+            break rest.split_whitespace().next().unwrap().to_string();
+        }
+    };
+    // Keep reading its log, so a full pipe never blocks the server.
+    std::thread::spawn(move || lines.for_each(drop));
+    Pvsd {
+        child,
+        url: format!("http://{addr}"),
+        _dir: dir,
+    }
 }
 
 fn loadtest(args: &[&str]) -> Value {
@@ -56,7 +149,8 @@ fn loadtest(args: &[&str]) -> Value {
 
 #[test]
 fn every_mode_runs_without_errors_and_reports_every_field() {
-    let target = pvsd_server();
+    let server = pvsd_server();
+    let target = server.url.clone();
     for (mode, rate) in [
         ("session", None),
         ("stateless", None),
@@ -121,7 +215,8 @@ fn every_mode_runs_without_errors_and_reports_every_field() {
 
 #[test]
 fn errors_are_counted_by_kind() {
-    let target = pvsd_server();
+    let server = pvsd_server();
+    let target = server.url.clone();
     // A method the scene does not support: every session fails to start.
     let r = loadtest(&[
         "--target",

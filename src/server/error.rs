@@ -1,4 +1,5 @@
-//! Errors as clients see them: a status and `{"error": {"code", "message"}}`.
+//! Errors as clients see them: a status and `{"error": {"code", "message"}}`
+//! (`pvsd_proto::error`, whose [`ErrorCode`]s are the stable codes).
 //!
 //! Every handler returns `Result<_, ApiError>`; internals are logged, never
 //! sent. A bad request never panics and never changes shared state.
@@ -6,7 +7,7 @@
 use axum::Json;
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use serde_json::json;
+use pvsd_proto::error::{ErrorBody, ErrorCode};
 
 use crate::cull::{CullError, MethodError};
 use crate::geom::CameraError;
@@ -122,35 +123,47 @@ impl From<CullError> for ApiError {
 impl ApiError {
     /// The status and the stable machine-readable code.
     pub fn status_and_code(&self) -> (StatusCode, &'static str) {
+        let (status, code) = self.status_and_error_code();
+        (status, code.as_str())
+    }
+
+    /// The status and the code, typed.
+    pub fn status_and_error_code(&self) -> (StatusCode, ErrorCode) {
         match self {
-            ApiError::InvalidView(_) => (StatusCode::BAD_REQUEST, "invalid_view"),
-            ApiError::MalformedJson(_) => (StatusCode::BAD_REQUEST, "malformed_json"),
-            ApiError::BodyTooLarge { .. } => (StatusCode::PAYLOAD_TOO_LARGE, "body_too_large"),
-            ApiError::UnknownScene { .. } => (StatusCode::NOT_FOUND, "unknown_scene"),
-            ApiError::UnknownSession(_) => (StatusCode::NOT_FOUND, "unknown_session"),
-            ApiError::SessionExpired { .. } => (StatusCode::GONE, "session_expired"),
-            ApiError::SessionEvicted(_) => (StatusCode::GONE, "session_evicted"),
-            ApiError::UpgradeRequired(_) => (StatusCode::UPGRADE_REQUIRED, "upgrade_required"),
-            ApiError::InvalidQuery(_) => (StatusCode::BAD_REQUEST, "invalid_query"),
-            ApiError::UnknownWalkthrough(_) => (StatusCode::NOT_FOUND, "unknown_walkthrough"),
+            ApiError::InvalidView(_) => (StatusCode::BAD_REQUEST, ErrorCode::InvalidView),
+            ApiError::MalformedJson(_) => (StatusCode::BAD_REQUEST, ErrorCode::MalformedJson),
+            ApiError::BodyTooLarge { .. } => {
+                (StatusCode::PAYLOAD_TOO_LARGE, ErrorCode::BodyTooLarge)
+            }
+            ApiError::UnknownScene { .. } => (StatusCode::NOT_FOUND, ErrorCode::UnknownScene),
+            ApiError::UnknownSession(_) => (StatusCode::NOT_FOUND, ErrorCode::UnknownSession),
+            ApiError::SessionExpired { .. } => (StatusCode::GONE, ErrorCode::SessionExpired),
+            ApiError::SessionEvicted(_) => (StatusCode::GONE, ErrorCode::SessionEvicted),
+            ApiError::UpgradeRequired(_) => {
+                (StatusCode::UPGRADE_REQUIRED, ErrorCode::UpgradeRequired)
+            }
+            ApiError::InvalidQuery(_) => (StatusCode::BAD_REQUEST, ErrorCode::InvalidQuery),
+            ApiError::UnknownWalkthrough(_) => {
+                (StatusCode::NOT_FOUND, ErrorCode::UnknownWalkthrough)
+            }
             ApiError::Method(e) => (
                 StatusCode::BAD_REQUEST,
                 match e {
-                    MethodError::Unknown { .. } => "unknown_method",
-                    MethodError::Unsupported { .. } => "unsupported_method",
-                    MethodError::UnknownOption { .. } => "unknown_option",
+                    MethodError::Unknown { .. } => ErrorCode::UnknownMethod,
+                    MethodError::Unsupported { .. } => ErrorCode::UnsupportedMethod,
+                    MethodError::UnknownOption { .. } => ErrorCode::UnknownOption,
                     MethodError::InvalidOption { .. } | MethodError::Malformed { .. } => {
-                        "invalid_option"
+                        ErrorCode::InvalidOption
                     }
                 },
             ),
-            ApiError::NoRoute { .. } => (StatusCode::NOT_FOUND, "not_found"),
+            ApiError::NoRoute { .. } => (StatusCode::NOT_FOUND, ErrorCode::NotFound),
             ApiError::MethodNotAllowed { .. } => {
-                (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed")
+                (StatusCode::METHOD_NOT_ALLOWED, ErrorCode::MethodNotAllowed)
             }
-            ApiError::Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
-            ApiError::Busy { .. } => (StatusCode::SERVICE_UNAVAILABLE, "busy"),
-            ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+            ApiError::Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::Timeout),
+            ApiError::Busy { .. } => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::Busy),
+            ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Internal),
         }
     }
 }
@@ -159,13 +172,14 @@ impl ApiError {
     /// The JSON body clients get, `{"error": {"code", "message"}}`; logs
     /// the details of an internal error, which the body does not carry.
     pub fn body(&self) -> serde_json::Value {
-        let code = self.status_and_code().1;
+        let code = self.status_and_error_code().1;
         if let ApiError::Internal(detail) = self {
             tracing::error!(%detail, "internal error");
         } else {
             tracing::debug!(%code, message = %self, "request refused");
         }
-        json!({ "error": { "code": code, "message": self.to_string() } })
+        serde_json::to_value(ErrorBody::new(code, self.to_string()))
+            .expect("an error body serializes")
     }
 }
 

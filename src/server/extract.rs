@@ -61,7 +61,7 @@ pub fn parse<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ApiError> {
 }
 
 /// Rewrites bare `NaN`, `Infinity` and `-Infinity` outside strings into the
-/// strings `"NaN"`, `"Infinity"`, `"-Infinity"`, which [`super::wire::Number`]
+/// strings `"NaN"`, `"Infinity"`, `"-Infinity"`, which [`pvsd_proto::json::Number`]
 /// reads. `None` when there is none (the common case: no copy).
 fn relax_non_finite(bytes: &[u8]) -> Option<Vec<u8>> {
     const TOKENS: [&[u8]; 3] = [b"-Infinity", b"Infinity", b"NaN"];

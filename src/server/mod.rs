@@ -1,5 +1,5 @@
-//! The HTTP service: routes, shared state, sessions, walkthroughs, wire
-//! formats, WebSocket, errors, metrics, shutdown.
+//! The HTTP service: routes, shared state, sessions, walkthroughs,
+//! WebSocket, errors, metrics, shutdown.
 //!
 //! Split like mini-redis: [`app`] builds the router over an [`AppState`]
 //! (tests drive it with `tower::ServiceExt::oneshot`), [`run`] serves it on a
@@ -7,10 +7,10 @@
 //! future for SIGINT and SIGTERM, and [`config`] reads `--config` files.
 //! [`session`] keeps clients' temporal caches and computes deltas,
 //! [`walkthrough`] puts several sessions in one scene, [`ws`] streams
-//! frames, [`wire`] and [`binary`] are the JSON and `application/x-pvs`
-//! encodings.
+//! frames. The wire formats (JSON bodies, `application/x-pvs`, deltas) are
+//! `pvsd_proto`'s, shared with `loadtest`; [`wire`] converts between them
+//! and the library's types.
 
-pub mod binary;
 pub mod config;
 mod error;
 mod extract;

@@ -10,16 +10,17 @@ use axum::Json;
 use axum::extract::{OriginalUri, Path, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
+use pvsd_proto::json::{
+    Bounds, FrameResponse, ObjectInfo, SceneInfo, SessionCreated, SessionRequest, UserJoined,
+    ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo,
+};
+use pvsd_proto::xpvs as binary;
 
-use super::binary;
 use super::error::ApiError;
 use super::extract::{RawBody, parse};
 use super::session::Session;
 use super::state::AppState;
-use super::wire::{
-    Bounds, FrameResponse, ObjectInfo, SceneInfo, SessionCreated, SessionRequest, UserJoined,
-    ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo, method_spec,
-};
+use super::wire::{BoundsExt, ViewRequestExt, method_spec};
 use crate::cull::{CullJob, MethodSpec, SceneMethods, View};
 
 /// `GET /healthz`: 200 while the server runs.

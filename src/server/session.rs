@@ -25,14 +25,14 @@ use moka::notification::RemovalCause;
 use moka::ops::compute::Op;
 use moka::policy::EvictionPolicy;
 use moka::sync::Cache;
+use pvsd_proto::delta::{IdSet, diff};
+use pvsd_proto::json::FrameResponse;
 use rand::Rng;
 
-use super::binary::{IdSet, diff};
 use super::error::ApiError;
 use super::metrics::Metrics;
 use super::state::SessionLimits;
 use super::walkthrough::User;
-use super::wire::FrameResponse;
 use crate::cull::{
     ClientCache, CullJob, CullStats, Culler, MethodOptions, Occludees, SceneMethods, View,
     VisibleSet,

@@ -12,10 +12,10 @@ use std::time::Duration;
 
 use glam::DVec3;
 use moka::sync::Cache;
+use pvsd_proto::json::{Pose, UserInfo, WalkthroughInfo};
 
 use super::error::ApiError;
 use super::session::random_id;
-use super::wire::{Pose, UserInfo, WalkthroughInfo};
 use crate::cull::{MethodSpec, SceneMethods};
 use crate::geom::{Aabb, Camera};
 

@@ -19,9 +19,9 @@ use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade, close_
 use axum::extract::{Path, Query, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
+use pvsd_proto::xpvs as binary;
 use serde::Deserialize;
 
-use super::binary;
 use super::error::ApiError;
 use super::routes::{answer_frame, wants_binary};
 use super::state::AppState;

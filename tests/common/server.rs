@@ -6,8 +6,8 @@ use std::collections::BTreeSet;
 use std::net::SocketAddr;
 
 use pvsd::geom::Camera;
-use pvsd::server::wire::FrameResponse;
 use pvsd::server::{AppState, Limits};
+use pvsd_proto::json::FrameResponse;
 use serde_json::{Value, json};
 
 /// A server running until dropped.
@@ -129,7 +129,7 @@ impl Held {
 
 /// An `application/x-pvs` decoder from the spec, independent of the server's.
 pub mod xpvs {
-    use pvsd::server::wire::FrameResponse;
+    use pvsd_proto::json::FrameResponse;
 
     fn varint(b: &[u8], at: &mut usize) -> u64 {
         let mut v = 0u64;

@@ -1,12 +1,13 @@
 //! `application/x-pvs`: the compact binary encoding of answers, specified
 //! in `proto/wire-format.md` (read that first; this is its implementation).
+//! The server encodes with it, clients decode with it.
 //!
 //! Ids travel sorted and delta-coded as unsigned LEB128 varints: a walk's
 //! visible sets are runs of nearby ids, so most gaps fit one byte. Sessions
-//! also keep their last frames in this form ([`IdSet`]), a quarter of the
-//! memory of `u32`s or less.
+//! also keep their last frames in this form ([`crate::delta::IdSet`]), a
+//! quarter of the memory of `u32`s or less.
 
-use super::wire::FrameResponse as Frame;
+use crate::json::FrameResponse as Frame;
 
 /// The media type.
 pub const CONTENT_TYPE: &str = "application/x-pvs";
@@ -20,24 +21,33 @@ const FLAG_BASE: u8 = 1;
 const FLAG_USERS: u8 = 2;
 
 /// Why bytes are not a message.
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum DecodeError {
     /// The bytes end inside a value.
-    #[error("truncated at byte {0}")]
     Truncated(usize),
     /// A varint longer than its type, or ids past `u32::MAX`.
-    #[error("value out of range at byte {0}")]
     Overflow(usize),
     /// Unknown kind or flags.
-    #[error("unknown message kind or flags at byte {0}")]
     Unknown(usize),
     /// A user id that is not UTF-8.
-    #[error("user id at byte {0} is not UTF-8")]
     NotUtf8(usize),
     /// Bytes left over after the message.
-    #[error("{0} bytes after the end of the message")]
     Trailing(usize),
 }
+
+impl std::fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DecodeError::Truncated(at) => write!(f, "truncated at byte {at}"),
+            DecodeError::Overflow(at) => write!(f, "value out of range at byte {at}"),
+            DecodeError::Unknown(at) => write!(f, "unknown message kind or flags at byte {at}"),
+            DecodeError::NotUtf8(at) => write!(f, "user id at byte {at} is not UTF-8"),
+            DecodeError::Trailing(n) => write!(f, "{n} bytes after the end of the message"),
+        }
+    }
+}
+
+impl std::error::Error for DecodeError {}
 
 /// A decoded message.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -228,63 +238,10 @@ pub fn decode(bytes: &[u8]) -> Result<Message, DecodeError> {
     Ok(message)
 }
 
-/// A sorted id set kept in its encoded form (a session's past frames).
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct IdSet {
-    bytes: Box<[u8]>,
-}
-
-impl IdSet {
-    /// Encodes strictly ascending `ids`.
-    pub fn new(ids: &[u32]) -> IdSet {
-        let mut out = Vec::with_capacity(1 + ids.len() * 2);
-        put_ids(&mut out, ids);
-        IdSet {
-            bytes: out.into_boxed_slice(),
-        }
-    }
-
-    /// The ids, into `out` (cleared first).
-    pub fn decode_into(&self, out: &mut Vec<u32>) {
-        let mut r = Reader {
-            bytes: &self.bytes,
-            at: 0,
-        };
-        out.clear();
-        r.ids_into(out)
-            .expect("an IdSet holds what IdSet::new encoded");
-    }
-
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        self.bytes.len()
-    }
-}
-
-/// The changes from ascending `old` to ascending `new`: ids `new` adds and
-/// ids it removes, both ascending.
-pub fn diff(old: &[u32], new: &[u32], added: &mut Vec<u32>, removed: &mut Vec<u32>) {
-    added.clear();
-    removed.clear();
-    let (mut i, mut j) = (0, 0);
-    while i < old.len() && j < new.len() {
-        match old[i].cmp(&new[j]) {
-            std::cmp::Ordering::Less => {
-                removed.push(old[i]);
-                i += 1;
-            }
-            std::cmp::Ordering::Greater => {
-                added.push(new[j]);
-                j += 1;
-            }
-            std::cmp::Ordering::Equal => {
-                i += 1;
-                j += 1;
-            }
-        }
-    }
-    removed.extend_from_slice(&old[i..]);
-    added.extend_from_slice(&new[j..]);
+/// Appends the id set at the start of `bytes` to `ids`; the bytes an
+/// [`crate::delta::IdSet`] keeps.
+pub(crate) fn ids_into(bytes: &[u8], ids: &mut Vec<u32>) -> Result<(), DecodeError> {
+    Reader { bytes, at: 0 }.ids_into(ids)
 }
 
 #[cfg(test)]
@@ -352,16 +309,5 @@ mod tests {
         assert!(decode(&[b'V', 0xFF, 0xFF, 0xFF, 0xFF, 0x0F]).is_err());
         assert_eq!(decode(b"X"), Err(DecodeError::Unknown(0)));
         assert_eq!(decode(&[b'F', 4]), Err(DecodeError::Unknown(1)));
-    }
-
-    #[test]
-    fn diff_and_idset() {
-        let (mut a, mut r) = (vec![], vec![]);
-        diff(&[1, 2, 5, 9], &[2, 3, 9, 11], &mut a, &mut r);
-        assert_eq!((a.as_slice(), r.as_slice()), (&[3, 11][..], &[1, 5][..]));
-        let set = IdSet::new(&[4, 8, 1000]);
-        let mut out = vec![7];
-        set.decode_into(&mut out);
-        assert_eq!(out, [4, 8, 1000]);
     }
 }

@@ -1,0 +1,387 @@
+//! The JSON bodies of the HTTP API (DESIGN "HTTP API"): what clients send
+//! and what the server answers, field for field.
+//!
+//! Each type derives `ToSchema` next to its serde attributes, so the OpenAPI
+//! document ([`crate::openapi`]) is read off these declarations and a field
+//! cannot change without its schema. Doc comments become the schema's
+//! descriptions: they are written for client authors.
+//!
+//! The conversions to and from the server's own types (cameras, method
+//! specs, cull statistics) live in the server (`src/server/wire.rs`); this
+//! crate knows nothing of geometry.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Deserializer, Serialize};
+use utoipa::openapi::schema::{ObjectBuilder, Type};
+use utoipa::openapi::{RefOr, Schema};
+use utoipa::{PartialSchema, ToSchema};
+
+/// A number that may also arrive as `"NaN"`, `"Infinity"` or `"-Infinity"`
+/// (the server rewrites those bare tokens into these strings), so that
+/// validation can name the field that is not finite.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Number(pub f64);
+
+impl<'de> Deserialize<'de> for Number {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = Number;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a number")
+            }
+            fn visit_f64<E>(self, v: f64) -> Result<Number, E> {
+                Ok(Number(v))
+            }
+            fn visit_i64<E>(self, v: i64) -> Result<Number, E> {
+                Ok(Number(v as f64))
+            }
+            fn visit_u64<E>(self, v: u64) -> Result<Number, E> {
+                Ok(Number(v as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Number, E> {
+                match v {
+                    "NaN" => Ok(Number(f64::NAN)),
+                    "Infinity" => Ok(Number(f64::INFINITY)),
+                    "-Infinity" => Ok(Number(f64::NEG_INFINITY)),
+                    _ => Err(E::invalid_type(serde::de::Unexpected::Str(v), &self)),
+                }
+            }
+        }
+        d.deserialize_any(Visitor)
+    }
+}
+
+/// In the document a `Number` is a number: the non-finite spellings are
+/// read only to be refused by name.
+impl PartialSchema for Number {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::Number)
+            .description(Some(
+                "A finite number (NaN or an infinity is refused, naming the field)",
+            ))
+            .into()
+    }
+}
+
+impl ToSchema for Number {}
+
+/// One value of a method's `options`: a string, a number or a boolean
+/// (`{"k": 32, "variant": "fme"}`). Documentation only: `options` are kept
+/// as JSON and the server refuses other values by name.
+pub struct OptionValue;
+
+impl PartialSchema for OptionValue {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(utoipa::openapi::schema::SchemaType::from_iter([
+                Type::String,
+                Type::Number,
+                Type::Boolean,
+            ]))
+            .description(Some("A method option's value"))
+            .into()
+    }
+}
+
+impl ToSchema for OptionValue {}
+
+/// A view as clients send it (DESIGN: "A **view**"): the body of
+/// `POST /scenes/{id}/visible`, of `POST /sessions/{sid}/frames` and of
+/// each WebSocket text message. Coordinates are in the scene's units
+/// (glTF: metres, +Y up). Absent or `null` fields take their defaults.
+#[derive(Clone, Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(as = View)]
+pub struct ViewRequest {
+    /// Eye position, world coordinates.
+    #[schema(min_items = 3, max_items = 3)]
+    pub eye: [Number; 3],
+    /// Viewing direction (need not be unit length; not zero).
+    #[schema(min_items = 3, max_items = 3)]
+    pub forward: [Number; 3],
+    /// Up direction, not parallel to `forward` (default +Y).
+    #[schema(min_items = 3, max_items = 3, default = json!([0, 1, 0]))]
+    pub up: Option<[Number; 3]>,
+    /// Vertical field of view, degrees, in (0, 180) (default 60).
+    // A `Number` is a number in the document; spelled `f64` here so that
+    // the range reaches the schema (a `$ref` carries no bounds).
+    #[schema(value_type = Option<f64>, default = 60, exclusive_minimum = 0, exclusive_maximum = 180)]
+    pub fov_y_deg: Option<Number>,
+    /// Width / height (default: the viewport's, else 1.6).
+    pub aspect: Option<Number>,
+    /// Near plane distance, above 0 (default 0.1).
+    #[schema(value_type = Option<f64>, default = 0.1, exclusive_minimum = 0)]
+    pub near: Option<Number>,
+    /// Far plane distance, beyond `near` (default 10000).
+    #[schema(default = 10000)]
+    pub far: Option<Number>,
+    /// Image size in pixels, width and height (default 1024 × 640).
+    #[schema(min_items = 2, max_items = 2, default = json!([1024, 640]))]
+    pub viewport: Option<[u32; 2]>,
+    /// Culling method: one that `GET /scenes` lists for the scene, or
+    /// `auto` (default). Session frames refuse it: the session chose.
+    #[schema(default = "auto")]
+    pub method: Option<String>,
+    /// The method's knobs, e.g. `{"k": 32, "variant": "fme"}`; an unknown
+    /// one is refused by name. Session frames refuse them.
+    #[serde(default)]
+    #[schema(value_type = BTreeMap<String, OptionValue>)]
+    pub options: serde_json::Map<String, serde_json::Value>,
+    /// Session frames only (refused on `/scenes/{id}/visible`): the frame
+    /// the client holds; the answer is the delta against it if the session
+    /// still keeps it (the last 4), else the whole set with `base: null`.
+    /// Default: the last frame the server sent.
+    pub base: Option<u64>,
+}
+
+/// The body of `POST /sessions` and `POST /walkthroughs`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SessionRequest {
+    /// The scene id.
+    pub scene: String,
+    /// Culling method (default `auto`).
+    #[schema(default = "auto")]
+    pub method: Option<String>,
+    /// The method's knobs, as in a view.
+    #[serde(default)]
+    #[schema(value_type = BTreeMap<String, OptionValue>)]
+    pub options: serde_json::Map<String, serde_json::Value>,
+}
+
+/// A box in world coordinates.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct Bounds {
+    /// Smallest corner.
+    #[schema(min_items = 3, max_items = 3)]
+    pub min: [f64; 3],
+    /// Largest corner.
+    #[schema(min_items = 3, max_items = 3)]
+    pub max: [f64; 3],
+}
+
+/// One entry of `GET /scenes`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct SceneInfo {
+    /// The scene id: its file stem (`city1k.glb` → `city1k`).
+    pub id: String,
+    /// Number of objects.
+    pub objects: usize,
+    /// Number of triangles.
+    pub triangles: usize,
+    /// World bounds; `null` for a scene without triangles.
+    #[schema(required = true)]
+    pub bounds: Option<Bounds>,
+    /// The up axis.
+    #[schema(min_items = 3, max_items = 3)]
+    pub up: [f32; 3],
+    /// Methods it supports (`auto` is always accepted besides).
+    pub methods: Vec<String>,
+    /// Methods it does not support, each with why (e.g. `horizon` on a
+    /// scene that is no height field over a ground).
+    pub unsupported: BTreeMap<String, String>,
+}
+
+/// One entry of `GET /scenes/{id}/objects`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct ObjectInfo {
+    /// The object id.
+    pub id: u32,
+    /// Its name.
+    pub name: String,
+    /// World bounds; `null` for an object with no triangles.
+    #[schema(required = true)]
+    pub bounds: Option<Bounds>,
+}
+
+/// The `stats` of an answer: what it cost.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct Stats {
+    /// The method that answered (`auto` resolved).
+    pub method: String,
+    /// Cull time, microseconds.
+    pub cull_us: f64,
+    /// Hierarchy nodes tested.
+    pub nodes_tested: u64,
+    /// Objects in the frustum; `null` when the method does not count them
+    /// (occlusion methods drop hidden subtrees uncounted).
+    #[schema(required = true)]
+    pub in_frustum: Option<u64>,
+    /// Objects in the answer.
+    pub visible: u64,
+    /// Only when the asked method could not answer this view (e.g. a lost
+    /// device): the method that answered instead, e.g. `frustum`, whose
+    /// answer is conservative too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub fallback: Option<String>,
+    /// Only with `fallback`: why the asked method could not answer.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub fallback_reason: Option<String>,
+}
+
+/// The answer of `POST /scenes/{id}/visible`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct VisibleResponse {
+    /// Possibly visible object ids, ascending.
+    pub visible: Vec<u32>,
+    /// Per id of `visible`, an upper bound of the pixels it covers; only
+    /// when the method was asked for them (`horizon` with `areas=true`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub areas: Option<Vec<f64>>,
+    /// What it cost.
+    pub stats: Stats,
+}
+
+/// `value` as JSON into a buffer sized for `ids` ids up front: an answer
+/// of thousands of ids would otherwise grow its buffer a dozen times.
+fn json_sized(value: &impl Serialize, ids: usize) -> Vec<u8> {
+    // Ids of a scene under a million objects print in at most 7 bytes with
+    // their comma; the rest of a body is well under 256.
+    let mut out = Vec::with_capacity(256 + ids * 7);
+    serde_json::to_writer(&mut out, value).expect("answers serialize");
+    out
+}
+
+impl VisibleResponse {
+    /// The JSON body.
+    pub fn to_json(&self) -> Vec<u8> {
+        let areas = self.areas.as_ref().map_or(0, |a| a.len() * 3);
+        json_sized(self, self.visible.len() + areas)
+    }
+}
+
+/// The answer of `POST /sessions`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct SessionCreated {
+    /// The session id: 128 random bits, 32 hex digits; whoever holds it
+    /// owns the session.
+    pub session: String,
+    /// The method that answers its frames (`auto` resolved).
+    pub method: String,
+}
+
+/// A session frame: the change from `base` to this frame's visible set
+/// (JSON, or `application/x-pvs` as `proto/wire-format.md` gives it).
+/// Apply `removed`, then `added`, to the set held for `base`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, Eq, ToSchema)]
+#[schema(as = Frame)]
+pub struct FrameResponse {
+    /// This frame's number: 1 for the session's first, then one more each frame.
+    pub frame: u64,
+    /// The frame the delta is against; `null`: `added` is the whole set.
+    #[schema(required = true)]
+    pub base: Option<u64>,
+    /// Ids visible now and not in `base`, ascending.
+    pub added: Vec<u32>,
+    /// Ids in `base` and not visible now, ascending.
+    pub removed: Vec<u32>,
+    /// In a walkthrough only: the other users whose avatars may be
+    /// visible, ascending.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub users_visible: Option<Vec<String>>,
+}
+
+impl FrameResponse {
+    /// The JSON body.
+    pub fn to_json(&self) -> Vec<u8> {
+        let users = self.users_visible.as_ref().map_or(0, |u| u.len() * 5);
+        json_sized(self, self.added.len() + self.removed.len() + users)
+    }
+}
+
+/// The answer of `POST /walkthroughs`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct WalkthroughCreated {
+    /// The walkthrough id.
+    pub walkthrough: String,
+    /// The method its users' frames are answered with (`auto` resolved).
+    pub method: String,
+}
+
+/// The answer of `POST /walkthroughs/{wid}/users`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct UserJoined {
+    /// The user's id, as others see it in `users_visible`.
+    pub user: String,
+    /// The user's session: send its frames there.
+    pub session: String,
+}
+
+/// Where a user last stood (world coordinates).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct Pose {
+    /// The eye.
+    #[schema(min_items = 3, max_items = 3)]
+    pub eye: [f64; 3],
+    /// The viewing direction.
+    #[schema(min_items = 3, max_items = 3)]
+    pub forward: [f64; 3],
+    /// The up direction.
+    #[schema(min_items = 3, max_items = 3)]
+    pub up: [f64; 3],
+}
+
+/// One user of `GET /walkthroughs/{wid}`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct UserInfo {
+    /// The user id.
+    pub user: String,
+    /// The last frame's camera; `null` before the first frame.
+    #[schema(required = true)]
+    pub pose: Option<Pose>,
+    /// Frames answered.
+    pub frames: u64,
+}
+
+/// The answer of `GET /walkthroughs/{wid}`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct WalkthroughInfo {
+    /// The walkthrough id.
+    pub walkthrough: String,
+    /// Its scene.
+    pub scene: String,
+    /// Its method.
+    pub method: String,
+    /// Its users, by id.
+    pub users: Vec<UserInfo>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stats(fallback: Option<(&str, &str)>) -> Stats {
+        Stats {
+            method: "gpu".into(),
+            cull_us: 1.5,
+            nodes_tested: 3,
+            in_frustum: None,
+            visible: 2,
+            fallback: fallback.map(|f| f.0.into()),
+            fallback_reason: fallback.map(|f| f.1.into()),
+        }
+    }
+
+    #[test]
+    fn a_fallback_is_said_only_when_there_was_one() {
+        let plain = serde_json::to_value(stats(None)).unwrap();
+        assert_eq!(
+            plain,
+            serde_json::json!({"method": "gpu", "cull_us": 1.5, "nodes_tested": 3,
+                "in_frustum": null, "visible": 2})
+        );
+        let fell = stats(Some(("frustum", "device lost")));
+        let json = serde_json::to_value(&fell).unwrap();
+        assert_eq!(json["fallback"], "frustum");
+        assert_eq!(json["fallback_reason"], "device lost");
+        assert_eq!(serde_json::from_value::<Stats>(json).unwrap(), fell);
+        assert_eq!(serde_json::from_value::<Stats>(plain).unwrap(), stats(None));
+    }
+}
