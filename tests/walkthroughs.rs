@@ -209,7 +209,7 @@ async fn a_user_whose_session_expires_leaves_the_walkthrough() {
     assert_eq!(r.status(), 410);
 }
 
-/// `cull_dynamic` against ground truth: the scene plus the avatars as real
+/// Avatars as occludees against ground truth: the scene plus the avatars as real
 /// boxes is rendered; every avatar that shows a pixel must be reported
 /// visible by every method of the scene.
 #[test]

@@ -1,22 +1,33 @@
-//! The one way every cull is run: stateless requests, session frames,
-//! WebSocket frames, walkthrough frames, eval and the command line.
+//! The one way a server runs a cull: stateless requests, session frames,
+//! WebSocket frames and walkthrough frames all go through
+//! [`SceneMethods::cull`]; the command line and benches through its
+//! blocking twin [`SceneMethods::cull_blocking`]; eval and tests that must
+//! see a method's own failures through [`cull_here`], which does not fall
+//! back.
 //!
-//! [`SceneMethods::cull`] runs a [`CullJob`] where the method's
-//! [`Execution`] says (inline, on the blocking pool, or on a device's
-//! queue) and awaits it; [`SceneMethods::cull_blocking`] does the same on
-//! the calling thread for callers outside the async runtime. Both settle
-//! the result the same way: a method that fails at run time (a lost
-//! device, a panic) is answered by frustum culling, the stats say so
-//! ([`Fallback`]), and the client's cache is made afresh, since a failed
-//! cull may have left it half-updated. Only a busy device is an error: the
-//! client is asked to come back ([`CullError::Busy`]).
+//! A [`CullJob`] runs where the method's [`Execution`] says: inline, on the
+//! blocking pool, or on a device's queue. The result is settled one way:
+//! - an answer is returned with its job;
+//! - a method that fails at run time ([`CullError::Failed`]: a lost device,
+//!   a panic) is answered by frustum culling into the same job, the stats
+//!   say so ([`Fallback`]) and time the whole attempt, and the client's
+//!   cache is made afresh when it can be (a failed cull may have left it
+//!   half-updated; every method's state is safe to reuse stale, so the old
+//!   one stays when it cannot);
+//! - a busy device ([`CullError::Busy`]) is returned with the job, so a
+//!   session keeps its cache and buffers and the client can retry;
+//! - a job lost with its thread (a bug: panics are caught before that) is
+//!   an internal error, never a fallback that could not answer the job's
+//!   dynamic occludees.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
+use std::time::Instant;
 
 use super::device::Refused;
 use super::{
-    CullError, CullJob, CullStats, Culler, Execution, Fallback, MethodOptions, SceneMethods, View,
+    CullError, CullJob, CullStats, Culler, DeviceQueue, Execution, Fallback, MethodOptions,
+    SceneMethods,
 };
 
 /// A job after its cull, with what the cull cost and found.
@@ -28,32 +39,49 @@ pub struct Culled {
     pub stats: CullStats,
 }
 
-/// Where a job stands after its method ran: culled, or failed with the
-/// job (unless it was lost with a thread; boxed, as failures are rare and
-/// a job is large).
-type Ran = Result<Culled, (Option<Box<CullJob>>, CullError)>;
+/// A cull that gave no answer: why, and the job when it came back (boxed:
+/// a job is large, and this is rare).
+#[derive(Debug)]
+pub struct Unanswered {
+    /// The job, for the caller to keep its cache and buffers; `None` when
+    /// it was lost with its thread.
+    pub job: Option<Box<CullJob>>,
+    /// Why there is no answer.
+    pub error: CullError,
+}
+
+/// Where a job stands after its method ran.
+type Ran = Result<Culled, Unanswered>;
 
 /// A result with the job it came with.
 fn ran(job: CullJob, result: Result<CullStats, CullError>) -> Ran {
     match result {
         Ok(stats) => Ok(Culled { job, stats }),
-        Err(e) => Err((Some(Box::new(job)), e)),
+        Err(error) => Err(Unanswered {
+            job: Some(Box::new(job)),
+            error,
+        }),
     }
+}
+
+/// A job that did not come back.
+fn lost(method: &dyn Culler, how: impl std::fmt::Display) -> Ran {
+    Err(Unanswered {
+        job: None,
+        error: failed(method, format!("the job was lost: {how}")),
+    })
 }
 
 impl SceneMethods {
     /// Culls `job` with `method` where the method runs, without blocking
     /// the async worker for more than an inline method's microseconds.
-    ///
-    /// Errors only with [`CullError::Busy`] (the device's queue is full),
-    /// or when a failed method's cache cannot be made again.
     pub async fn cull(
         &self,
         method: &Arc<dyn Culler>,
         mut job: CullJob,
-    ) -> Result<Culled, CullError> {
-        let (view, options) = (job.view, job.cache_options());
-        let ran: Ran = match method.execution() {
+    ) -> Result<Culled, Unanswered> {
+        let start = Instant::now();
+        let ran = match method.execution() {
             Execution::Inline => {
                 let result = run_caught(&**method, &mut job);
                 ran(job, result)
@@ -66,18 +94,18 @@ impl SceneMethods {
                 });
                 match task.await {
                     Ok((job, result)) => ran(job, result),
-                    Err(e) => Err((None, failed(&**method, format!("its task ended: {e}")))),
+                    Err(e) => lost(&**method, e),
                 }
             }
             Execution::Device(queue) => match queue.submit(method.clone(), job) {
                 Ok(answer) => match answer.await {
                     Ok((job, result)) => ran(job, result),
-                    Err(_) => Err((None, failed(&**method, STOPPED))),
+                    Err(_) => lost(&**method, STOPPED),
                 },
                 Err(refused) => refused_by(&queue, &**method, refused),
             },
         };
-        self.settle(method, view, &options, ran)
+        self.settle(method, start, ran)
     }
 
     /// [`SceneMethods::cull`] on the calling thread: inline and blocking
@@ -87,77 +115,74 @@ impl SceneMethods {
         &self,
         method: &Arc<dyn Culler>,
         job: CullJob,
-    ) -> Result<Culled, CullError> {
-        let (view, options) = (job.view, job.cache_options());
+    ) -> Result<Culled, Unanswered> {
+        let start = Instant::now();
         let ran = run_waiting(method, job);
-        self.settle(method, view, &options, ran)
+        self.settle(method, start, ran)
     }
 
     /// Turns a method's result into an answer: its own, or frustum
-    /// culling's when it failed.
-    fn settle(
-        &self,
-        method: &Arc<dyn Culler>,
-        view: View,
-        options: &MethodOptions,
-        ran: Ran,
-    ) -> Result<Culled, CullError> {
-        let (job, reason) = match ran {
-            Ok(culled) => return Ok(culled),
-            Err((_, busy @ CullError::Busy { .. })) => return Err(busy),
-            Err((job, CullError::Failed { reason, .. })) => (job, reason),
+    /// culling's when it failed (module docs).
+    fn settle(&self, method: &Arc<dyn Culler>, start: Instant, ran: Ran) -> Ran {
+        let (mut job, reason) = match ran {
+            Err(Unanswered {
+                job: Some(job),
+                error: CullError::Failed { reason, .. },
+            }) => (job, reason),
+            other => return other,
         };
         tracing::warn!(method = method.name(), %reason, "cull failed; answering with frustum culling");
-        let remade = method.new_cache(options).map_err(|e| {
-            failed(
-                &**method,
-                format!("{reason}; and its cache cannot be made again: {e}"),
-            )
-        })?;
-        let mut job = match job {
-            Some(mut job) => {
-                job.cache = remade;
-                *job
-            }
-            None => CullJob::new(view, remade),
-        };
+        match method.new_cache(job.cache.options()) {
+            Ok(fresh) => job.cache = fresh,
+            Err(e) => tracing::error!(method = method.name(), %e, "cannot remake a cache"),
+        }
         // Frustum culling answers into the job's own buffers, with a cache
         // of its own (it keeps no state).
         let fallback = self.fallback();
-        let cache = fallback
-            .new_cache(&MethodOptions::new())
-            .map_err(|e| failed(&**fallback, e.to_string()))?;
+        let cache = match fallback.new_cache(&MethodOptions::new()) {
+            Ok(cache) => cache,
+            Err(e) => {
+                let error = failed(&**fallback, e.to_string());
+                return Err(Unanswered {
+                    job: Some(job),
+                    error,
+                });
+            }
+        };
         let mut instead = CullJob {
-            view,
+            view: job.view,
             cache,
             out: std::mem::take(&mut job.out),
             occludees: std::mem::take(&mut job.occludees),
         };
-        let mut stats = fallback.cull(&mut instead)?;
+        let result = fallback.cull(&mut instead);
         job.out = instead.out;
         job.occludees = instead.occludees;
+        let mut stats = match result {
+            Ok(stats) => stats,
+            Err(error) => {
+                return Err(Unanswered {
+                    job: Some(job),
+                    error,
+                });
+            }
+        };
         stats.method = method.name();
+        stats.cull_us = start.elapsed().as_secs_f64() * 1e6;
         stats.fallback = Some(Fallback {
             method: fallback.name(),
             reason,
         });
-        Ok(Culled { job, stats })
-    }
-}
-
-impl CullJob {
-    /// The options its cache was made with (a counted reference).
-    fn cache_options(&self) -> Arc<MethodOptions> {
-        self.cache.shared_options()
+        Ok(Culled { job: *job, stats })
     }
 }
 
 /// Culls `job` with `method` on the calling thread, waiting for a device
 /// method's device, with no fallback: for callers that report a failure
-/// themselves (eval measures a method, not its fallback). Never call it
-/// from an async worker.
+/// themselves (eval measures a method, not its fallback; tests must see a
+/// method fail). Never call it from an async worker.
 pub fn cull_here(method: &Arc<dyn Culler>, job: CullJob) -> Result<Culled, CullError> {
-    run_waiting(method, job).map_err(|(_, e)| e)
+    run_waiting(method, job).map_err(|u| u.error)
 }
 
 /// Runs `job` where `method` runs, waiting on this thread.
@@ -170,14 +195,15 @@ fn run_waiting(method: &Arc<dyn Culler>, mut job: CullJob) -> Ran {
         Execution::Device(queue) => match queue.submit(method.clone(), job) {
             Ok(answer) => match answer.blocking_recv() {
                 Ok((job, result)) => ran(job, result),
-                Err(_) => Err((None, failed(&**method, STOPPED))),
+                Err(_) => lost(&**method, STOPPED),
             },
             Err(refused) => refused_by(&queue, &**method, refused),
         },
     }
 }
 
-/// Runs one cull, a panic turned into a failure.
+/// Runs one cull, a panic turned into a failure. What panicked goes to the
+/// log; the client hears only that the method failed.
 fn run_caught(method: &dyn Culler, job: &mut CullJob) -> Result<CullStats, CullError> {
     catch_unwind(AssertUnwindSafe(|| method.cull(job))).unwrap_or_else(|panic| {
         let what = panic
@@ -185,9 +211,13 @@ fn run_caught(method: &dyn Culler, job: &mut CullJob) -> Result<CullStats, CullE
             .map(|s| s.to_string())
             .or_else(|| panic.downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "a panic".into());
-        Err(failed(method, format!("panicked: {what}")))
+        tracing::error!(method = method.name(), panic = %what, "a cull panicked");
+        Err(failed(method, PANICKED))
     })
 }
+
+/// The reason a client hears for a method that panicked.
+pub const PANICKED: &str = "the method panicked (the details are in the server's log)";
 
 /// Why a job that was queued never came back.
 const STOPPED: &str = "the device stopped before answering";
@@ -200,18 +230,22 @@ fn failed(method: &dyn Culler, reason: impl Into<String>) -> CullError {
 }
 
 /// What a refused submission means for the caller.
-fn refused_by(queue: &super::DeviceQueue, method: &dyn Culler, refused: Refused) -> Ran {
-    match refused {
-        Refused::Full(job) => Err((
-            Some(job),
+fn refused_by(queue: &DeviceQueue, method: &dyn Culler, refused: Refused) -> Ran {
+    let (job, error) = match refused {
+        Refused::Full(job) => (
+            job,
             CullError::Busy {
                 method: method.name(),
                 retry_after: queue.retry_after(),
             },
-        )),
-        Refused::Stopped(job) => Err((
-            Some(job),
+        ),
+        Refused::Stopped(job) => (
+            job,
             failed(method, format!("device '{}' has stopped", queue.name())),
-        )),
-    }
+        ),
+    };
+    Err(Unanswered {
+        job: Some(job),
+        error,
+    })
 }

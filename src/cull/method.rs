@@ -228,7 +228,7 @@ pub struct ClientCache {
     method: &'static str,
     conservative: bool,
     /// The options it was made with, to make it again after a failure.
-    options: Arc<MethodOptions>,
+    options: MethodOptions,
     state: Box<dyn Any + Send>,
 }
 
@@ -246,11 +246,6 @@ impl ClientCache {
     /// The options it was made with.
     pub fn options(&self) -> &MethodOptions {
         &self.options
-    }
-
-    /// The options it was made with, shared (to make it again).
-    pub(crate) fn shared_options(&self) -> Arc<MethodOptions> {
-        self.options.clone()
     }
 }
 
@@ -332,7 +327,7 @@ impl<M: CullMethod> Culler for M {
         Ok(ClientCache {
             method: CullMethod::name(self),
             conservative: self.is_conservative(&state),
-            options: Arc::new(options.clone()),
+            options: options.clone(),
             state: Box::new(state),
         })
     }

@@ -37,7 +37,7 @@ pub mod view;
 pub mod visible_set;
 
 pub use device::DeviceQueue;
-pub use dispatch::Culled;
+pub use dispatch::{Culled, Unanswered};
 pub use method::{
     BatchItem, ClientCache, CullCounters, CullError, CullJob, CullMethod, CullStats, Culler,
     Execution, Fallback, InFrustum, Occludees,

@@ -16,6 +16,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
 
 use super::device::DeviceQueue;
+use super::dispatch::cull_here;
 use super::frustum::FrustumCulling;
 use super::occluder::Occluders;
 use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodSpec};
@@ -334,9 +335,10 @@ impl SceneMethods {
         Ok((method.clone(), cache))
     }
 
-    /// One stateless answer on this thread: a fresh cache, one view (the
-    /// command line and tests; never from an async worker, since a device
-    /// method waits for its device here).
+    /// One stateless answer on this thread: a fresh cache, one view, and
+    /// no fallback, so a method that fails says so (the command line and
+    /// tests; never from an async worker, since a device method waits for
+    /// its device here).
     pub fn cull_once(
         &self,
         spec: &MethodSpec,
@@ -344,7 +346,7 @@ impl SceneMethods {
         out: &mut VisibleSet,
     ) -> Result<CullStats, CullOnceError> {
         let (method, cache) = self.prepare_client(spec)?;
-        let culled = self.cull_blocking(&method, CullJob::new(*view, cache))?;
+        let culled = cull_here(&method, CullJob::new(*view, cache))?;
         *out = culled.job.out;
         Ok(culled.stats)
     }

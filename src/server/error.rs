@@ -9,7 +9,7 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use pvsd_proto::error::{ErrorBody, ErrorCode};
 
-use crate::cull::{CullError, MethodError};
+use crate::cull::{CullError, MethodError, Unanswered};
 use crate::geom::CameraError;
 
 /// Everything a request can fail with.
@@ -117,6 +117,12 @@ impl From<CullError> for ApiError {
             },
             failed @ CullError::Failed { .. } => ApiError::Internal(failed.to_string()),
         }
+    }
+}
+
+impl From<Unanswered> for ApiError {
+    fn from(u: Unanswered) -> Self {
+        u.error.into()
     }
 }
 

@@ -142,14 +142,31 @@ impl Session {
         let f = &mut *frames;
         let cache = match f.cache.take() {
             Some(cache) => cache,
-            None => self.method.new_cache(&self.options)?,
+            // Lost with a thread that died (a bug): a fresh one.
+            None => self
+                .method
+                .new_cache(&self.options)
+                .map_err(|e| ApiError::Internal(format!("cannot remake a session's cache: {e}")))?,
         };
         let mut job = CullJob::new(view, cache);
         job.out = std::mem::take(&mut f.visible);
         job.occludees = std::mem::take(&mut f.occludees);
         job.occludees
             .set_boxes(others.iter().flatten().map(|(_, b)| *b));
-        let culled = self.scene.cull(&self.method, job).await?;
+        let culled = match self.scene.cull(&self.method, job).await {
+            Ok(culled) => culled,
+            Err(mut unanswered) => {
+                // No frame was answered: keep what the job carried, so a
+                // refused (busy) frame costs the session nothing.
+                if let Some(job) = unanswered.job.take() {
+                    let job = *job;
+                    f.cache = Some(job.cache);
+                    f.visible = job.out;
+                    f.occludees = job.occludees;
+                }
+                return Err(unanswered.into());
+            }
+        };
         let mut job = culled.job;
         let mut answer = f.answer(&mut job.out, base);
         answer.users_visible = others.map(|others| {

@@ -22,6 +22,12 @@ use crate::geom::{Aabb, ConvexPolygon, Plane};
 /// sides. Either way the polygon is tested on every side it lies on.
 const SLIVER_FLOOR: f64 = 1e-3;
 
+/// A path corner within this share of the plane tolerance of a cell's side
+/// counts as on it ([`on_or_outside`]): a thousandth of the band in which
+/// points are taken to lie on both sides, so an edge that is inside the
+/// cell by more than rounding always keeps its own shadow plane.
+const ON_PLANE_SHARE: f64 = 1e-3;
+
 /// The visibility of a union of parts, combined as they come (Table 1).
 #[derive(Clone, Copy, Debug, Default)]
 struct Combined(Option<Visibility>);
@@ -535,7 +541,7 @@ fn flag_on_plane(p: &Flagged, d: &[f64], sign: f64, eps: f64) -> Flagged {
 /// plane of its own: the path's plane bounds the cell at least as tightly.
 /// An edge even slightly inside the cell keeps its own plane.
 fn on_or_outside(d: f64, sign: f64, eps: f64) -> bool {
-    d * sign <= SLIVER_FLOOR * eps
+    d * sign <= ON_PLANE_SHARE * eps
 }
 
 /// A stack of node indices on the call stack, spilling to the heap only
