@@ -100,16 +100,7 @@ fn gen_then_query() {
 fn methods_lists_the_registry_and_what_a_scene_supports() {
     let (ok, out, err) = run(&["methods"]);
     assert!(ok, "{err}");
-    for name in [
-        "frustum",
-        "occlusion_tree",
-        "supporting_planes",
-        "horizon",
-        "ddo",
-        "gpu",
-        "raster",
-        "auto",
-    ] {
+    for name in pvsd::cull::METHOD_NAMES {
         assert!(out.lines().any(|l| l.starts_with(name)), "{name}: {out}");
     }
     let saw = shared_scene_path("2CylinderEngine");

@@ -11,9 +11,34 @@ pub mod tolerance;
 
 pub(crate) use selection::{Selection, SelectionOptions};
 
-use super::View;
+use std::sync::Arc;
+
 use super::occluder::Occluders;
+use super::{Preparation, View};
 use crate::geom::{ConvexPolygon, Plane};
+use crate::scene::Scene;
+use crate::spatial::KdTree;
+
+/// What an object-space occlusion method culls over: the scene, its
+/// kd-tree and its large planar occluders, shared with every other method
+/// of the scene.
+pub(crate) struct OccluderScene {
+    pub scene: Arc<Scene>,
+    pub tree: Arc<KdTree>,
+    pub occluders: Arc<Occluders>,
+}
+
+impl OccluderScene {
+    /// The scene's, from its preparation; the reason when it has no
+    /// occluders large enough to be worth testing against.
+    pub(crate) fn prepared(p: &Preparation<'_>) -> Result<OccluderScene, String> {
+        Ok(OccluderScene {
+            scene: p.scene().clone(),
+            tree: p.kd_tree(),
+            occluders: p.require_occluders()?,
+        })
+    }
+}
 
 /// Visibility of a region or polygon with respect to a view's occluders.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

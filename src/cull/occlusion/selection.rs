@@ -5,12 +5,11 @@
 
 use glam::DVec3;
 
-use super::Visibility;
 use super::hierarchy::{self, HierarchyParams};
+use super::{OccluderScene, Visibility};
 use crate::cull::occluder::Occluders;
 use crate::cull::{CullCounters, MethodError, Occludees, OptionReader, Ranged, View, VisibleSet};
 use crate::geom::{ALL_PLANES, Aabb, Side};
-use crate::scene::Scene;
 use crate::spatial::{KdTree, NodeKind};
 
 /// Occluders per view.
@@ -111,12 +110,8 @@ impl Selection {
 
     /// The occluders for this view: last frame's pick, or (first frame,
     /// stateless request) a pick from the leaves near the eye in the frustum.
-    pub(crate) fn occluders_for(
-        &mut self,
-        tree: &KdTree,
-        occluders: &Occluders,
-        view: &View,
-    ) -> Vec<u32> {
+    pub(crate) fn occluders_for(&mut self, world: &OccluderScene, view: &View) -> Vec<u32> {
+        let tree = &*world.tree;
         if let Some(next) = self.next.take() {
             return next;
         }
@@ -134,7 +129,7 @@ impl Selection {
                 NodeKind::Inner { children, .. } => stack.extend(children),
             }
         }
-        self.pick(tree, occluders, view.eye(), &near)
+        self.pick(tree, &world.occluders, view.eye(), &near)
     }
 
     /// §3: the k best occluders of the given leaves whose centres lie within λ.
@@ -173,20 +168,17 @@ impl Selection {
     /// Culls `view` over the kd-tree with `test` (the method's occlusion
     /// test), tests the dynamic `occludees` with it too, then picks the
     /// next frame's occluders from the leaves it saw.
-    #[allow(clippy::too_many_arguments)]
     pub(crate) fn cull(
         &mut self,
-        tree: &KdTree,
-        scene: &Scene,
-        occluders: &Occluders,
+        world: &OccluderScene,
         view: &View,
         test: &mut dyn FnMut(hierarchy::Target, &Aabb) -> Visibility,
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> CullCounters {
         let counters = hierarchy::cull(
-            tree,
-            scene,
+            &world.tree,
+            &world.scene,
             view,
             self.options.hierarchy,
             &mut self.marks,
@@ -195,7 +187,7 @@ impl Selection {
             &mut self.leaves,
         );
         hierarchy::test_occludees(occludees, test);
-        self.remember(tree, occluders, view.eye());
+        self.remember(&world.tree, &world.occluders, view.eye());
         counters
     }
 

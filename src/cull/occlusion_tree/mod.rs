@@ -20,17 +20,14 @@ use std::sync::Arc;
 
 pub use tree::{LeafTest, OcclusionTree};
 
-use super::occluder::Occluders;
 use super::occlusion::hierarchy::Target;
 use super::occlusion::tolerance::plane_tolerance;
-use super::occlusion::{Selection, SelectionOptions, visible_parts};
+use super::occlusion::{OccluderScene, Selection, SelectionOptions, visible_parts};
 use super::{
     CullCounters, CullError, CullMethod, Culler, MethodEntry, MethodError, MethodOptions,
     Occludees, Preparation, View, VisibleSet,
 };
 use crate::geom::Aabb;
-use crate::scene::Scene;
-use crate::spatial::KdTree;
 
 /// The method's registry entry; the table checks every variant and a
 /// small, history-free pick.
@@ -46,11 +43,9 @@ pub const ENTRY: MethodEntry = MethodEntry {
 };
 
 fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
-    Ok(Arc::new(OcclusionTreeCulling::new(
-        p.scene().clone(),
-        p.kd_tree(),
-        p.require_occluders()?,
-    )))
+    Ok(Arc::new(OcclusionTreeCulling {
+        world: OccluderScene::prepared(p)?,
+    }))
 }
 
 /// Which of Table 2's methods.
@@ -66,26 +61,13 @@ pub enum Variant {
 
 /// Hierarchical culling with occlusion trees; see the module docs.
 pub struct OcclusionTreeCulling {
-    scene: Arc<Scene>,
-    tree: Arc<KdTree>,
-    occluders: Arc<Occluders>,
+    world: OccluderScene,
 }
 
 /// A client's state: options, temporal marks, next frame's occluders.
 pub struct OcclusionTreeState {
     variant: Variant,
     selection: Selection,
-}
-
-impl OcclusionTreeCulling {
-    /// The method over `tree` with the scene's `occluders`.
-    pub fn new(scene: Arc<Scene>, tree: Arc<KdTree>, occluders: Arc<Occluders>) -> Self {
-        OcclusionTreeCulling {
-            scene,
-            tree,
-            occluders,
-        }
-    }
 }
 
 /// The variants, in `variant=` spelling; the first is the default.
@@ -126,14 +108,12 @@ impl CullMethod for OcclusionTreeCulling {
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
-        let picked = state
-            .selection
-            .occluders_for(&self.tree, &self.occluders, view);
+        let picked = state.selection.occluders_for(&self.world, view);
         let eye = view.eye();
         let mut order: Vec<(f64, u32)> = picked
             .iter()
             .map(|&i| {
-                let p = &self.occluders.all()[i as usize].polygon;
+                let p = &self.world.occluders.all()[i as usize].polygon;
                 (
                     p.vertices
                         .iter()
@@ -144,8 +124,13 @@ impl CullMethod for OcclusionTreeCulling {
             })
             .collect();
         order.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let eps = plane_tolerance(&self.scene, eye);
-        let polygons = visible_parts(&self.occluders, order.iter().map(|&(_, i)| i), view, eps);
+        let eps = plane_tolerance(&self.world.scene, eye);
+        let polygons = visible_parts(
+            &self.world.occluders,
+            order.iter().map(|&(_, i)| i),
+            view,
+            eps,
+        );
         let variant = state.variant;
         let occlusion = OcclusionTree::build(
             eye,
@@ -158,16 +143,9 @@ impl CullMethod for OcclusionTreeCulling {
             Variant::Fme => occlusion.region_visibility(b, LeafTest::Exact),
             Variant::Fmc => occlusion.region_visibility(b, LeafTest::Conservative),
         };
-        let counters = state.selection.cull(
-            &self.tree,
-            &self.scene,
-            &self.occluders,
-            view,
-            &mut test,
-            out,
-            occludees,
-        );
-        Ok(counters)
+        Ok(state
+            .selection
+            .cull(&self.world, view, &mut test, out, occludees))
     }
 
     fn state_bytes(&self, state: &Self::State) -> usize {

@@ -24,17 +24,14 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::occluder::Occluders;
 use super::occlusion::hierarchy::Target;
 use super::occlusion::tolerance::{plane_tolerance, too_small_to_trust};
-use super::occlusion::{Selection, SelectionOptions, Visibility, visible_parts};
+use super::occlusion::{OccluderScene, Selection, SelectionOptions, Visibility, visible_parts};
 use super::{
     CullCounters, CullError, CullMethod, Culler, MethodEntry, MethodError, MethodOptions,
     Occludees, Preparation, View, VisibleSet,
 };
 use crate::geom::{Aabb, ConvexPolygon, Plane};
-use crate::scene::Scene;
-use crate::spatial::KdTree;
 
 /// The method's registry entry.
 pub const ENTRY: MethodEntry = MethodEntry {
@@ -46,17 +43,13 @@ pub const ENTRY: MethodEntry = MethodEntry {
 
 fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
     Ok(Arc::new(SupportingPlanesCulling::new(
-        p.scene().clone(),
-        p.kd_tree(),
-        p.require_occluders()?,
+        OccluderScene::prepared(p)?,
     )))
 }
 
 /// Supporting and separating planes against the selected occluders.
 pub struct SupportingPlanesCulling {
-    scene: Arc<Scene>,
-    tree: Arc<KdTree>,
-    occluders: Arc<Occluders>,
+    world: OccluderScene,
     /// Per occluder: the occluders it shares an edge with, and that edge.
     neighbours: Vec<Vec<(u32, [DVec3; 2])>>,
 }
@@ -80,8 +73,9 @@ struct Shadow {
 }
 
 impl SupportingPlanesCulling {
-    /// The method over `tree` with the scene's `occluders`.
-    pub fn new(scene: Arc<Scene>, tree: Arc<KdTree>, occluders: Arc<Occluders>) -> Self {
+    /// The method over the scene's occluders.
+    fn new(world: OccluderScene) -> Self {
+        let occluders = &world.occluders;
         let key = |v: DVec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
         let mut by_edge: FxHashMap<([u64; 3], [u64; 3]), Vec<u32>> = FxHashMap::default();
         for (i, o) in occluders.all().iter().enumerate() {
@@ -107,17 +101,12 @@ impl SupportingPlanesCulling {
                 }
             }
         }
-        SupportingPlanesCulling {
-            scene,
-            tree,
-            occluders,
-            neighbours,
-        }
+        SupportingPlanesCulling { world, neighbours }
     }
 
     /// The shadow of `part`, the visible part of occluder `index`.
     fn shadow(&self, index: u32, part: &ConvexPolygon, eye: DVec3, eps: f64) -> Option<Shadow> {
-        let o = &self.occluders.all()[index as usize];
+        let o = &self.world.occluders.all()[index as usize];
         let side = o.plane.signed_distance(eye);
         if side.abs() <= eps {
             return None;
@@ -240,12 +229,10 @@ impl CullMethod for SupportingPlanesCulling {
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
         let eye = view.eye();
-        let eps = plane_tolerance(&self.scene, eye);
-        let picked = state
-            .selection
-            .occluders_for(&self.tree, &self.occluders, view);
+        let eps = plane_tolerance(&self.world.scene, eye);
+        let picked = state.selection.occluders_for(&self.world, view);
         // Only what lies beyond the near plane can hide anything.
-        let shadows: Vec<Shadow> = visible_parts(&self.occluders, picked, view, eps)
+        let shadows: Vec<Shadow> = visible_parts(&self.world.occluders, picked, view, eps)
             .iter()
             .filter_map(|(i, part)| self.shadow(*i, part, eye, eps))
             .collect();
@@ -329,16 +316,9 @@ impl CullMethod for SupportingPlanesCulling {
             }
             Visibility::Partial
         };
-        let counters = state.selection.cull(
-            &self.tree,
-            &self.scene,
-            &self.occluders,
-            view,
-            &mut test,
-            out,
-            occludees,
-        );
-        Ok(counters)
+        Ok(state
+            .selection
+            .cull(&self.world, view, &mut test, out, occludees))
     }
 
     fn state_bytes(&self, state: &Self::State) -> usize {
