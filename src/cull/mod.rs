@@ -23,18 +23,28 @@
 
 pub mod device;
 pub mod dispatch;
-pub mod frustum;
-pub mod horizon;
 pub mod method;
 pub mod occluder;
 pub mod occlusion;
-pub mod occlusion_tree;
 pub mod registry;
 mod spec;
 mod subtree;
-pub mod supporting_planes;
 pub mod view;
 pub mod visible_set;
+
+/// Declares each method's folder and lists its registry entry
+/// (`<method>::ENTRY`), in DESIGN's order: a new method is its folder and
+/// its name here ([`Registry::standard`] takes the list).
+macro_rules! methods {
+    ($($method:ident),* $(,)?) => {
+        $(pub mod $method;)*
+
+        /// The registry entries of the methods pvsd has, in DESIGN's order.
+        const BUILT: &[MethodEntry] = &[$($method::ENTRY),*];
+    };
+}
+
+methods!(frustum, occlusion_tree, supporting_planes, horizon);
 
 pub use device::DeviceQueue;
 pub use dispatch::{Culled, Unanswered};

@@ -8,9 +8,10 @@
 //! kd-tree, the occluders), each built once and only when an entry asks
 //! for it, so a scene keeps only what its methods need.
 //!
-//! A new method is its folder under `cull/` and one entry in
-//! [`Registry::standard`]; the server, eval, `/scenes` and the
-//! conservativeness table (tests/conservative.rs) take it from there.
+//! A new method is its folder under `cull/` (with its `ENTRY`) and its name
+//! in the `methods!` list of `cull/mod.rs`; [`Registry::standard`], the
+//! server, eval, `/scenes` and the conservativeness table
+//! (tests/conservative.rs) take it from there.
 
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
@@ -127,31 +128,22 @@ pub struct Registry {
 pub const AUTO_CHOICE: &str = "frustum";
 
 impl Registry {
-    /// Every method of DESIGN's list, in its order; those not built yet
-    /// say so. A method's entry lives in its folder.
+    /// Every method of DESIGN's list: those pvsd has (declared in
+    /// `cull/mod.rs`, each entry in its folder), then those it does not
+    /// have yet, which every scene lists as unsupported ([`NOT_BUILT`]).
     pub fn standard() -> Registry {
+        let built = super::BUILT;
+        let planned = PLANNED
+            .iter()
+            .filter(|(name, _)| !built.iter().any(|e| e.name == *name))
+            .map(|&(name, purpose)| MethodEntry {
+                name,
+                purpose,
+                checked_with: &[],
+                build: |_| Err(NOT_BUILT.into()),
+            });
         Registry {
-            entries: vec![
-                super::frustum::ENTRY,
-                super::occlusion_tree::ENTRY,
-                super::supporting_planes::ENTRY,
-                super::horizon::ENTRY,
-                not_built(
-                    "ddo",
-                    "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
-                    |_| Err(NOT_BUILT.into()),
-                ),
-                not_built(
-                    "gpu",
-                    "hardware occlusion queries on a Vulkan device, lavapipe on the CPU (Tai & Hsu)",
-                    |_| Err(NOT_BUILT.into()),
-                ),
-                not_built(
-                    "raster",
-                    "a conservative software depth buffer on the CPU (against Masked Occlusion Culling)",
-                    |_| Err(NOT_BUILT.into()),
-                ),
-            ],
+            entries: built.iter().copied().chain(planned).collect(),
         }
     }
 
@@ -178,16 +170,22 @@ impl Registry {
 /// does not have yet.
 pub const NOT_BUILT: &str = "not built yet";
 
-/// The entry of a method of DESIGN's list that is not built yet: listed,
-/// with why, as unsupported by every scene.
-fn not_built(name: &'static str, purpose: &'static str, why: Build) -> MethodEntry {
-    MethodEntry {
-        name,
-        purpose,
-        checked_with: &[],
-        build: why,
-    }
-}
+/// The methods of DESIGN's list that pvsd does not have yet, with what
+/// each will be for; one that gets built leaves this list by itself.
+const PLANNED: [(&str, &str); 3] = [
+    (
+        "ddo",
+        "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
+    ),
+    (
+        "gpu",
+        "hardware occlusion queries on a Vulkan device, lavapipe on the CPU (Tai & Hsu)",
+    ),
+    (
+        "raster",
+        "a conservative software depth buffer on the CPU (against Masked Occlusion Culling)",
+    ),
+];
 
 impl Default for Registry {
     fn default() -> Self {
@@ -361,4 +359,34 @@ pub enum CullOnceError {
     /// The method could not answer.
     #[error(transparent)]
     Cull(#[from] CullError),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_standard_registry_is_designs_list_in_its_order() {
+        let names: Vec<&str> = Registry::standard()
+            .entries()
+            .iter()
+            .map(|e| e.name)
+            .collect();
+        let design: Vec<&str> = METHOD_NAMES
+            .iter()
+            .copied()
+            .filter(|&n| n != "auto")
+            .collect();
+        assert_eq!(names, design);
+    }
+
+    #[test]
+    fn a_planned_method_that_gets_built_leaves_the_planned_list() {
+        let built: Vec<&str> = super::super::BUILT.iter().map(|e| e.name).collect();
+        for (name, _) in PLANNED {
+            let entries = Registry::standard();
+            let count = entries.entries().iter().filter(|e| e.name == name).count();
+            assert_eq!(count, 1, "{name} once, built or planned (built: {built:?})");
+        }
+    }
 }
