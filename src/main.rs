@@ -355,8 +355,18 @@ fn generate(cmd: GenCommand) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A method spec whose name the registry knows, checked before any scene
+/// is loaded.
+fn known_spec(text: &str) -> anyhow::Result<MethodSpec> {
+    let spec: MethodSpec = text.parse()?;
+    if spec.name != "auto" && !Registry::standard().knows(&spec.name) {
+        return Err(pvsd::cull::MethodError::Unknown { name: spec.name }.into());
+    }
+    Ok(spec)
+}
+
 fn query(args: QueryArgs) -> anyhow::Result<()> {
-    let spec: MethodSpec = args.method.parse()?;
+    let spec = known_spec(&args.method)?;
     let scene = load_scene(&args.scene)?;
     let camera = Camera {
         eye: args.eye,
@@ -431,8 +441,8 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
     let specs = args
         .methods
         .iter()
-        .map(|m| m.parse())
-        .collect::<Result<Vec<MethodSpec>, _>>()?;
+        .map(|m| known_spec(m))
+        .collect::<anyhow::Result<Vec<MethodSpec>>>()?;
     let methods = SceneMethods::prepare(load_scene(&args.scene)?);
     let params = EvalParams {
         walk: WalkParams {

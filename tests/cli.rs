@@ -117,10 +117,35 @@ fn methods_lists_the_registry_and_what_a_scene_supports() {
 fn cli_errors_are_one_clear_line() {
     let scene = shared_scene_path("Sponza");
     let s = scene.to_str().unwrap();
-    let cases: [(&[&str], &str); 5] = [
+    let cases: [(&[&str], &str); 7] = [
         (
             &["query", "--scene", s, "--eye", "0,nan,0", "--dir", "1,0,0"],
             "error: eye[1] is NaN",
+        ),
+        // An unknown method is refused before any scene is read.
+        (
+            &[
+                "query",
+                "--scene",
+                "/nonexistent/x.glb",
+                "--eye",
+                "0,1,0",
+                "--dir",
+                "1,0,0",
+                "--method",
+                "octree",
+            ],
+            "error: unknown method 'octree'",
+        ),
+        (
+            &[
+                "eval",
+                "--scene",
+                "/nonexistent/x.glb",
+                "--methods",
+                "frustum,octree",
+            ],
+            "error: unknown method 'octree'",
         ),
         (
             &["query", "--scene", s, "--eye", "0,1,0", "--dir", "0,0,0"],

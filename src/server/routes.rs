@@ -100,8 +100,8 @@ pub async fn visible(
     let req: ViewRequest = parse(&body)?;
     req.check_stateless()?;
     let spec = req.method_spec()?;
-    let view = View::new(req.camera(), methods.scene())?;
     let (method, cache) = methods.prepare_client(&spec)?;
+    let view = View::new(req.camera(), methods.scene())?;
     let culled = methods.cull(&method, CullJob::new(view, cache)).await?;
     let (out, stats) = (culled.job.out, culled.stats);
     state.metrics().observe_cull(&id, &stats);
