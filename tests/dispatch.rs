@@ -19,8 +19,8 @@ use common::server::{Held, Server, view_json};
 use futures_util::{SinkExt, StreamExt};
 use pvsd::cull::frustum::FrustumCulling;
 use pvsd::cull::{
-    BatchItem, CullCounters, CullError, CullMethod, DeviceQueue, Execution, MethodContext,
-    MethodEntry, MethodError, MethodOptions, Occludees, Registry, View, VisibleSet,
+    BatchItem, CullCounters, CullError, CullMethod, DeviceLimits, DeviceQueue, Execution,
+    MethodContext, MethodEntry, MethodError, MethodOptions, Occludees, Registry, View, VisibleSet,
 };
 use pvsd::geom::Camera;
 use pvsd::server::{AppState, Limits};
@@ -44,24 +44,34 @@ struct Probe {
     panics: AtomicBool,
 }
 
+/// The probe of `on_device`, the first test's device method.
 fn probe() -> &'static Probe {
+    static PROBE: OnceLock<Probe> = OnceLock::new();
+    PROBE.get_or_init(Probe::default)
+}
+
+/// The probe of `on_hung_device`, the deadline test's (tests run in
+/// parallel: each turns only its own switches).
+fn hung_probe() -> &'static Probe {
     static PROBE: OnceLock<Probe> = OnceLock::new();
     PROBE.get_or_init(Probe::default)
 }
 
 /// Frustum culling on a device's thread, in batches.
 struct OnDevice {
+    name: &'static str,
     inner: FrustumCulling,
     queue: Arc<DeviceQueue>,
+    probe: &'static Probe,
 }
 
 impl CullMethod for OnDevice {
     type State = ();
     fn name(&self) -> &'static str {
-        "on_device"
+        self.name
     }
     fn new_state(&self, options: &MethodOptions) -> Result<(), MethodError> {
-        options.reader("on_device", &[]).finish()
+        options.reader(self.name, &[]).finish()
     }
     fn is_conservative(&self, _: &()) -> bool {
         true
@@ -76,16 +86,16 @@ impl CullMethod for OnDevice {
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
-        if probe().lost.load(Ordering::SeqCst) {
+        if self.probe.lost.load(Ordering::SeqCst) {
             return Err(CullError::Failed {
-                method: "on_device",
+                method: self.name,
                 reason: "device lost".into(),
             });
         }
         self.inner.cull(view, state, out, occludees)
     }
     fn cull_batch(&self, batch: &mut [BatchItem<'_, ()>]) -> Vec<Result<CullCounters, CullError>> {
-        let p = probe();
+        let p = self.probe;
         p.begun.fetch_add(batch.len(), Ordering::SeqCst);
         while p.hold.load(Ordering::SeqCst) {
             std::thread::sleep(Duration::from_millis(1));
@@ -133,10 +143,24 @@ fn registry() -> Registry {
             purpose: "frustum culling on a device's thread (a test's device)",
             checked_with: &[],
             build: |p| {
-                let queue = p.context().device.clone().ok_or("no device")?;
                 Ok(Arc::new(OnDevice {
+                    name: "on_device",
                     inner: FrustumCulling::new(p.scene().clone(), p.kd_tree()),
-                    queue,
+                    queue: p.context().device.clone().ok_or("no device")?,
+                    probe: probe(),
+                }))
+            },
+        })
+        .with(MethodEntry {
+            name: "on_hung_device",
+            purpose: "frustum culling on a device that may hang (a test's device)",
+            checked_with: &[],
+            build: |p| {
+                Ok(Arc::new(OnDevice {
+                    name: "on_hung_device",
+                    inner: FrustumCulling::new(p.scene().clone(), p.kd_tree()),
+                    queue: p.context().device.clone().ok_or("no device")?,
+                    probe: hung_probe(),
                 }))
             },
         })
@@ -195,7 +219,13 @@ fn ids(v: &Value, field: &str) -> Vec<u64> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_dispatch_serves_every_route_from_a_device_and_falls_back() {
-    let queue = DeviceQueue::start("test", 4, 16, Duration::from_millis(200)).unwrap();
+    let limits = DeviceLimits {
+        capacity: 4,
+        max_batch: 16,
+        retry_after: Duration::from_millis(200),
+        deadline: Duration::from_secs(10),
+    };
+    let queue = DeviceQueue::start("test", limits).unwrap();
     let context = MethodContext {
         device: Some(queue),
         ..MethodContext::default()
@@ -403,4 +433,89 @@ async fn without_a_device_a_device_method_is_unsupported_with_the_reason() {
     .await;
     assert_eq!(status, 400, "{body}");
     assert_eq!(body["error"]["code"], "unsupported_method");
+}
+
+/// A device that does not answer within its deadline: the caller is
+/// answered by frustum culling, avatars included, and the device's late
+/// answer goes nowhere; once it answers again, so does the method.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hung_device_is_answered_by_frustum_culling_at_its_deadline() {
+    let limits = DeviceLimits {
+        deadline: Duration::from_millis(300),
+        ..DeviceLimits::default()
+    };
+    let context = MethodContext {
+        device: Some(DeviceQueue::start("hung", limits).unwrap()),
+        ..MethodContext::default()
+    };
+    let state = AppState::with_methods(
+        vec![city_scene(200, 3, [0.0; 3])],
+        Limits::default(),
+        &registry(),
+        &context,
+    )
+    .unwrap();
+    let s = Server::start(state).await;
+    let c = reqwest::Client::new();
+    let p = hung_probe();
+    let (_, _, w) = post(
+        &c,
+        s.url("/walkthroughs"),
+        json!({"scene": "city", "method": "on_hung_device"}),
+    )
+    .await;
+    let wid = w["walkthrough"].as_str().unwrap().to_string();
+    let join = || post(&c, s.url(&format!("/walkthroughs/{wid}/users")), json!({}));
+    let (_, _, a) = join().await;
+    let (_, _, b) = join().await;
+    let frame_of = |user: &Value| {
+        s.url(&format!(
+            "/sessions/{}/frames",
+            user["session"].as_str().unwrap()
+        ))
+    };
+    let (status, _, _) = post(
+        &c,
+        frame_of(&b),
+        json!({"eye": [10.0, 1.7, 2.92], "forward": [-1, 0, 0]}),
+    )
+    .await;
+    assert_eq!(status, 200);
+
+    p.hold.store(true, Ordering::SeqCst);
+    let started = std::time::Instant::now();
+    let (status, _, frame) = post(&c, frame_of(&a), view(2, None)).await;
+    let waited = started.elapsed();
+    p.hold.store(false, Ordering::SeqCst);
+    assert_eq!(status, 200, "{frame}");
+    assert!(waited >= Duration::from_millis(300), "{waited:?}");
+    assert_eq!(frame["users_visible"], json!([b["user"]]), "{frame}");
+    let (_, _, frustum) = post(&c, s.url("/scenes/city/visible"), view(2, Some("frustum"))).await;
+    assert_eq!(ids(&frame, "added"), ids(&frustum, "visible"));
+    let (_, _, stateless) = post(
+        &c,
+        s.url("/scenes/city/visible"),
+        view(2, Some("on_hung_device")),
+    )
+    .await;
+    assert!(stateless["stats"].get("fallback").is_none(), "{stateless}");
+    let (_, _, late) = {
+        p.hold.store(true, Ordering::SeqCst);
+        let r = post(
+            &c,
+            s.url("/scenes/city/visible"),
+            view(2, Some("on_hung_device")),
+        )
+        .await;
+        p.hold.store(false, Ordering::SeqCst);
+        r
+    };
+    assert_eq!(late["stats"]["fallback"], "frustum", "{late}");
+    assert!(
+        late["stats"]["fallback_reason"]
+            .as_str()
+            .unwrap()
+            .starts_with("no answer within"),
+        "{late}"
+    );
 }

@@ -9,7 +9,9 @@
 //! refuses at once (the server answers 503 with `Retry-After`), and the
 //! answer comes back through a one-shot channel that the caller awaits.
 //! A panic in a batch fails that batch's jobs (each then answered by
-//! frustum culling), not the thread.
+//! frustum culling), not the thread; a device that does not answer a job
+//! within its deadline has that job answered by frustum culling too (a
+//! hung device must not hang its clients).
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
@@ -40,11 +42,36 @@ pub enum Refused {
     Stopped(Box<CullJob>),
 }
 
+/// How a device's queue is sized and timed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DeviceLimits {
+    /// Most jobs waiting; past it, submissions are refused (503 `busy`).
+    pub capacity: usize,
+    /// Most jobs run as one batch.
+    pub max_batch: usize,
+    /// What a refused client is told to wait (`Retry-After`).
+    pub retry_after: Duration,
+    /// How long a caller waits for the device's answer before answering
+    /// with frustum culling instead.
+    pub deadline: Duration,
+}
+
+impl Default for DeviceLimits {
+    fn default() -> Self {
+        DeviceLimits {
+            capacity: 256,
+            max_batch: 64,
+            retry_after: Duration::from_secs(1),
+            deadline: Duration::from_secs(2),
+        }
+    }
+}
+
 /// A bounded queue in front of a thread that owns a device.
 pub struct DeviceQueue {
     name: String,
     sender: SyncSender<Submission>,
-    retry_after: Duration,
+    limits: DeviceLimits,
 }
 
 impl std::fmt::Debug for DeviceQueue {
@@ -56,24 +83,17 @@ impl std::fmt::Debug for DeviceQueue {
 }
 
 impl DeviceQueue {
-    /// Starts the device's thread, named `name`, taking at most `capacity`
-    /// waiting jobs and running at most `max_batch` of them at a time.
-    /// `retry_after` is what a refused client is told to wait.
-    pub fn start(
-        name: &str,
-        capacity: usize,
-        max_batch: usize,
-        retry_after: Duration,
-    ) -> std::io::Result<Arc<DeviceQueue>> {
-        let (sender, receiver) = sync_channel(capacity.max(1));
-        let max_batch = max_batch.max(1);
+    /// Starts the device's thread, named `pvsd-device-{name}`, within `limits`.
+    pub fn start(name: &str, limits: DeviceLimits) -> std::io::Result<Arc<DeviceQueue>> {
+        let (sender, receiver) = sync_channel(limits.capacity.max(1));
+        let max_batch = limits.max_batch.max(1);
         std::thread::Builder::new()
             .name(format!("pvsd-device-{name}"))
             .spawn(move || work(receiver, max_batch))?;
         Ok(Arc::new(DeviceQueue {
             name: name.to_string(),
             sender,
-            retry_after,
+            limits,
         }))
     }
 
@@ -82,9 +102,9 @@ impl DeviceQueue {
         &self.name
     }
 
-    /// What a client refused by a full queue should wait.
-    pub fn retry_after(&self) -> Duration {
-        self.retry_after
+    /// Its limits.
+    pub fn limits(&self) -> DeviceLimits {
+        self.limits
     }
 
     /// Queues `job` for `method` without waiting; the answer arrives on the

@@ -16,9 +16,12 @@
 //!   one stays when it cannot);
 //! - a busy device ([`CullError::Busy`]) is returned with the job, so a
 //!   session keeps its cache and buffers and the client can retry;
-//! - a job lost with its thread (a bug: panics are caught before that) is
-//!   an internal error, never a fallback that could not answer the job's
-//!   dynamic occludees.
+//! - a device job whose answer does not come within the device's deadline
+//!   (or whose device stopped) is answered by frustum culling from copies
+//!   of its view and avatars, since the device keeps the job;
+//! - a job lost with its blocking thread (a bug: panics are caught before
+//!   that) is an internal error, never a fallback that could not answer the
+//!   job's dynamic occludees.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
@@ -27,8 +30,9 @@ use std::time::Instant;
 use super::device::Refused;
 use super::{
     CullError, CullJob, CullStats, Culler, DeviceQueue, Execution, Fallback, MethodOptions,
-    SceneMethods,
+    SceneMethods, View,
 };
+use crate::geom::Aabb;
 
 /// A job after its cull, with what the cull cost and found.
 #[derive(Debug)]
@@ -61,6 +65,43 @@ fn ran(job: CullJob, result: Result<CullStats, CullError>) -> Ran {
             job: Some(Box::new(job)),
             error,
         }),
+    }
+}
+
+/// What a device job's fallback needs when the device keeps the job.
+struct Spare {
+    view: View,
+    boxes: Vec<Aabb>,
+    options: MethodOptions,
+}
+
+impl Spare {
+    fn of(job: &CullJob) -> Spare {
+        Spare {
+            view: job.view,
+            boxes: job.occludees.boxes().to_vec(),
+            options: job.cache.options().clone(),
+        }
+    }
+
+    /// A fresh job for the same view and avatars, failed for `why`; the
+    /// dispatch answers it with frustum culling.
+    fn instead(self, method: &dyn Culler, why: impl std::fmt::Display) -> Ran {
+        let cache = match method.new_cache(&self.options) {
+            Ok(cache) => cache,
+            Err(e) => {
+                return lost(
+                    method,
+                    format!("{why}; and its cache cannot be made again: {e}"),
+                );
+            }
+        };
+        let mut job = CullJob::new(self.view, cache);
+        job.occludees.set_boxes(self.boxes);
+        Err(Unanswered {
+            job: Some(Box::new(job)),
+            error: failed(method, why.to_string()),
+        })
     }
 }
 
@@ -97,13 +138,24 @@ impl SceneMethods {
                     Err(e) => lost(&**method, e),
                 }
             }
-            Execution::Device(queue) => match queue.submit(method.clone(), job) {
-                Ok(answer) => match answer.await {
-                    Ok((job, result)) => ran(job, result),
-                    Err(_) => lost(&**method, STOPPED),
-                },
-                Err(refused) => refused_by(&queue, &**method, refused),
-            },
+            Execution::Device(queue) => {
+                // What a fallback needs if the device keeps the job: the
+                // view, the avatars and the options (copies; a device job
+                // is worth far more than they cost).
+                let spare = Spare::of(&job);
+                match queue.submit(method.clone(), job) {
+                    Ok(answer) => match tokio::time::timeout(queue.limits().deadline, answer).await
+                    {
+                        Ok(Ok((job, result))) => ran(job, result),
+                        Ok(Err(_)) => spare.instead(&**method, STOPPED),
+                        Err(_) => spare.instead(
+                            &**method,
+                            format!("no answer within {:?}", queue.limits().deadline),
+                        ),
+                    },
+                    Err(refused) => refused_by(&queue, &**method, refused),
+                }
+            }
         };
         self.settle(method, start, ran)
     }
@@ -236,7 +288,7 @@ fn refused_by(queue: &DeviceQueue, method: &dyn Culler, refused: Refused) -> Ran
             job,
             CullError::Busy {
                 method: method.name(),
-                retry_after: queue.retry_after(),
+                retry_after: queue.limits().retry_after,
             },
         ),
         Refused::Stopped(job) => (

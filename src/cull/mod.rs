@@ -46,7 +46,7 @@ macro_rules! methods {
 
 methods!(frustum, occlusion_tree, supporting_planes, horizon);
 
-pub use device::DeviceQueue;
+pub use device::{DeviceLimits, DeviceQueue};
 pub use dispatch::{Culled, Unanswered};
 pub use method::{
     BatchItem, ClientCache, CullCounters, CullError, CullJob, CullMethod, CullStats, Culler,
