@@ -76,7 +76,8 @@ fn check_table(
     scene: &Arc<Scene>,
     walks: &[WalkKind],
 ) -> Result<usize, String> {
-    let methods = SceneMethods::prepare_with(scene.clone(), registry, &MethodContext::default());
+    let methods =
+        SceneMethods::prepare_with(scene.clone(), registry, &MethodContext::of_this_machine());
     let variants = checked_methods(&methods, registry);
     for (label, method, options) in &variants {
         let cache = method.new_cache(options).unwrap();

@@ -10,8 +10,10 @@
 //! answer comes back through a one-shot channel that the caller awaits.
 //! A panic in a batch fails that batch's jobs (each then answered by
 //! frustum culling), not the thread; a device that does not answer a job
-//! within its deadline has that job answered by frustum culling too (a
-//! hung device must not hang its clients).
+//! within its deadline has that job answered by frustum culling too, and
+//! skips it if it comes to it later (a slow device must not hang its
+//! clients, nor spend its recovery on answers nobody waits for). While it
+//! is stuck, its full queue refuses new jobs (503 `busy`).
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
@@ -133,6 +135,9 @@ fn work(receiver: Receiver<Submission>, max_batch: usize) {
                 Err(_) => break,
             }
         }
+        // A caller past its deadline was answered by frustum culling and
+        // waits no more: a device that fell behind skips its stale work.
+        batch.retain(|s| !s.reply.is_closed());
         // One batch per method, in arrival order within each.
         while !batch.is_empty() {
             let method = batch[0].method.clone();

@@ -1,9 +1,9 @@
 //! The one way a server runs a cull: stateless requests, session frames,
 //! WebSocket frames and walkthrough frames all go through
-//! [`SceneMethods::cull`]; the command line and benches through its
-//! blocking twin [`SceneMethods::cull_blocking`]; eval and tests that must
-//! see a method's own failures through [`cull_here`], which does not fall
-//! back.
+//! [`SceneMethods::cull`]; benches and tests through its blocking twin
+//! [`SceneMethods::cull_blocking`]; eval, the command line
+//! (`SceneMethods::cull_once`) and tests that must see a method's own
+//! failures through [`cull_here`], which does not fall back.
 //!
 //! A [`CullJob`] runs where the method's [`Execution`] says: inline, on the
 //! blocking pool, or on a device's queue. The result is settled one way:
@@ -16,9 +16,11 @@
 //!   one stays when it cannot);
 //! - a busy device ([`CullError::Busy`]) is returned with the job, so a
 //!   session keeps its cache and buffers and the client can retry;
-//! - a device job whose answer does not come within the device's deadline
-//!   (or whose device stopped) is answered by frustum culling from copies
-//!   of its view and avatars, since the device keeps the job;
+//! - on the async path, a device job whose answer does not come within the
+//!   device's deadline (or whose device stopped) is answered by frustum
+//!   culling from copies of its view and avatars, since the device keeps
+//!   the job (the blocking paths wait for the device: a hung device hangs
+//!   the command, where a person sees it);
 //! - a job lost with its blocking thread (a bug: panics are caught before
 //!   that) is an internal error, never a fallback that could not answer the
 //!   job's dynamic occludees.

@@ -166,6 +166,11 @@ pub trait CullMethod: Send + Sync + 'static {
 
     /// A fresh state for a client, from the request's options; unknown or
     /// invalid options are refused by name.
+    ///
+    /// A state is plain per-client data, made on the caller's thread: what a
+    /// method needs of its device belongs to the method, not to a state, so
+    /// options accepted once make a state again whatever the device does
+    /// (the dispatch remakes a failed client's state this way).
     fn new_state(&self, options: &MethodOptions) -> Result<Self::State, MethodError>;
 
     /// Whether, with this state's options, the method never drops a visible object.

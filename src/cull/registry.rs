@@ -40,6 +40,17 @@ pub struct MethodContext {
     pub disabled: Vec<String>,
 }
 
+impl MethodContext {
+    /// What this machine offers the methods: the devices found on it (none
+    /// yet: pvsd has no device method), nothing baked on disk, every method
+    /// on. The server starts from it (adding its configuration), and so do
+    /// [`SceneMethods::prepare`], eval and the conservativeness table, so a
+    /// device method is checked wherever it would serve.
+    pub fn of_this_machine() -> MethodContext {
+        MethodContext::default()
+    }
+}
+
 /// One scene being prepared: what an entry's `build` reads.
 pub struct Preparation<'a> {
     scene: &'a Arc<Scene>,
@@ -142,9 +153,15 @@ impl Registry {
                 checked_with: &[],
                 build: |_| Err(NOT_BUILT.into()),
             });
-        Registry {
-            entries: built.iter().copied().chain(planned).collect(),
-        }
+        let mut entries: Vec<MethodEntry> = built.iter().copied().chain(planned).collect();
+        // DESIGN's order, whichever planned method was built first.
+        entries.sort_by_key(|e| {
+            METHOD_NAMES
+                .iter()
+                .position(|&n| n == e.name)
+                .unwrap_or(usize::MAX)
+        });
+        Registry { entries }
     }
 
     /// This registry with one more entry (a test's method, a plug-in);
@@ -219,9 +236,14 @@ pub struct SceneMethods {
 }
 
 impl SceneMethods {
-    /// Prepares `scene` with the standard registry and a default context.
+    /// Prepares `scene` with the standard registry in this machine's
+    /// context ([`MethodContext::of_this_machine`]).
     pub fn prepare(scene: Arc<Scene>) -> SceneMethods {
-        SceneMethods::prepare_with(scene, &Registry::standard(), &MethodContext::default())
+        SceneMethods::prepare_with(
+            scene,
+            &Registry::standard(),
+            &MethodContext::of_this_machine(),
+        )
     }
 
     /// Prepares what `scene`'s methods need and nothing more.

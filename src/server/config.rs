@@ -112,7 +112,7 @@ impl ServeConfig {
         MethodContext {
             bake_dir: self.bake_dir.clone(),
             disabled: self.disabled_methods.clone(),
-            ..MethodContext::default()
+            ..MethodContext::of_this_machine()
         }
     }
 

@@ -178,21 +178,23 @@ impl Metrics {
         self.websockets.inc_by(delta);
     }
 
-    /// Records one cull: its time and size under the method asked, and a
-    /// fallback when another method answered.
+    /// Records one cull: its time and size under the method that answered
+    /// (so a failing method's histograms hold only its own answers), and a
+    /// fallback under the method that was asked.
     pub fn observe_cull(&self, scene: &str, stats: &CullStats) {
-        let labels = CullLabels {
+        let labels = |method: &str| CullLabels {
             scene: scene.to_string(),
-            method: stats.method.to_string(),
+            method: method.to_string(),
         };
+        let answered = labels(stats.fallback.as_ref().map_or(stats.method, |f| f.method));
         self.cull
-            .get_or_create(&labels)
+            .get_or_create(&answered)
             .observe(stats.cull_us * 1e-6);
         self.visible
-            .get_or_create(&labels)
+            .get_or_create(&answered)
             .observe(stats.visible as f64);
         if stats.fallback.is_some() {
-            self.fallbacks.get_or_create(&labels).inc();
+            self.fallbacks.get_or_create(&labels(stats.method)).inc();
         }
     }
 

@@ -67,8 +67,9 @@ pub struct Session {
 
 /// What a session carries from frame to frame.
 struct Frames {
-    /// The method's cache; `None` only after a cull that lost it (the
-    /// next frame makes a fresh one).
+    /// The method's cache; `None` after a cull that kept it (a job lost
+    /// with its thread, or a request cancelled mid-cull by its client or
+    /// the timeout): the next frame makes a fresh one.
     cache: Option<ClientCache>,
     /// The number the next frame gets.
     next: u64,
@@ -142,7 +143,7 @@ impl Session {
         let f = &mut *frames;
         let cache = match f.cache.take() {
             Some(cache) => cache,
-            // Lost with a thread that died (a bug): a fresh one.
+            // Kept by a cull that never came back: a fresh one.
             None => self
                 .method
                 .new_cache(&self.options)

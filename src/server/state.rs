@@ -90,13 +90,14 @@ struct Shared {
 pub struct DuplicateScene(pub String);
 
 impl AppState {
-    /// State over these scenes, each prepared with the standard methods.
+    /// State over these scenes, each prepared with the standard methods in
+    /// this machine's context.
     pub fn new(scenes: Vec<Arc<Scene>>, limits: Limits) -> Result<AppState, DuplicateScene> {
         AppState::with_methods(
             scenes,
             limits,
             &Registry::standard(),
-            &MethodContext::default(),
+            &MethodContext::of_this_machine(),
         )
     }
 
