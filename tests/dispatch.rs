@@ -20,7 +20,8 @@ use futures_util::{SinkExt, StreamExt};
 use pvsd::cull::frustum::FrustumCulling;
 use pvsd::cull::{
     BatchItem, CullCounters, CullError, CullMethod, DeviceLimits, DeviceQueue, Execution,
-    MethodContext, MethodEntry, MethodError, MethodOptions, Occludees, Registry, View, VisibleSet,
+    MethodContext, MethodEntry, MethodError, MethodOptions, Occludees, Preparation, Registry, View,
+    VisibleSet,
 };
 use pvsd::geom::Camera;
 use pvsd::server::{AppState, Limits};
@@ -136,33 +137,33 @@ impl CullMethod for Panicky {
     }
 }
 
+/// An `OnDevice` method named `name` on the context's device, reporting to `probe`.
+fn on_device(
+    p: &Preparation<'_>,
+    name: &'static str,
+    probe: &'static Probe,
+) -> Result<Arc<dyn pvsd::cull::Culler>, String> {
+    Ok(Arc::new(OnDevice {
+        name,
+        inner: FrustumCulling::new(p.scene().clone(), p.kd_tree()),
+        queue: p.context().device.clone().ok_or("no device")?,
+        probe,
+    }))
+}
+
 fn registry() -> Registry {
     Registry::standard()
         .with(MethodEntry {
             name: "on_device",
             purpose: "frustum culling on a device's thread (a test's device)",
             checked_with: &[],
-            build: |p| {
-                Ok(Arc::new(OnDevice {
-                    name: "on_device",
-                    inner: FrustumCulling::new(p.scene().clone(), p.kd_tree()),
-                    queue: p.context().device.clone().ok_or("no device")?,
-                    probe: probe(),
-                }))
-            },
+            build: |p| on_device(p, "on_device", probe()),
         })
         .with(MethodEntry {
             name: "on_hung_device",
             purpose: "frustum culling on a device that may hang (a test's device)",
             checked_with: &[],
-            build: |p| {
-                Ok(Arc::new(OnDevice {
-                    name: "on_hung_device",
-                    inner: FrustumCulling::new(p.scene().clone(), p.kd_tree()),
-                    queue: p.context().device.clone().ok_or("no device")?,
-                    probe: hung_probe(),
-                }))
-            },
+            build: |p| on_device(p, "on_hung_device", hung_probe()),
         })
         .with(MethodEntry {
             name: "panicky",
