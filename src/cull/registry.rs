@@ -19,6 +19,7 @@ use std::sync::{Arc, OnceLock};
 use super::device::DeviceQueue;
 use super::dispatch::cull_here;
 use super::frustum::FrustumCulling;
+use super::gpu::Gpu;
 use super::occluder::Occluders;
 use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodSpec};
 use super::{CullError, CullJob, View, VisibleSet};
@@ -26,7 +27,7 @@ use crate::scene::Scene;
 use crate::spatial::{KdTree, KdTreeParams};
 
 /// What preparing methods may use beyond the scene itself.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct MethodContext {
     /// How the shared kd-tree is built.
     pub kd_tree: KdTreeParams,
@@ -36,18 +37,36 @@ pub struct MethodContext {
     /// The device that device methods submit to; `None` when the machine
     /// has none (those methods are then unsupported, with that reason).
     pub device: Option<Arc<DeviceQueue>>,
+    /// The Vulkan device `gpu` runs on, or why there is none.
+    pub gpu: Result<Arc<Gpu>, String>,
     /// Methods the operator turned off; listed as unsupported with that reason.
     pub disabled: Vec<String>,
 }
 
+impl Default for MethodContext {
+    /// Nothing but the scene: no device, no bake cache, every method on.
+    fn default() -> Self {
+        MethodContext {
+            kd_tree: KdTreeParams::default(),
+            bake_dir: None,
+            device: None,
+            gpu: Err("no Vulkan device in this context".into()),
+            disabled: Vec::new(),
+        }
+    }
+}
+
 impl MethodContext {
-    /// What this machine offers the methods: the devices found on it (none
-    /// yet: pvsd has no device method), nothing baked on disk, every method
+    /// What this machine offers the methods: its Vulkan device if it has
+    /// one (opened once per process), nothing baked on disk, every method
     /// on. The server starts from it (adding its configuration), and so do
     /// [`SceneMethods::prepare`], eval and the conservativeness table, so a
     /// device method is checked wherever it would serve.
     pub fn of_this_machine() -> MethodContext {
-        MethodContext::default()
+        MethodContext {
+            gpu: Gpu::of_this_machine(),
+            ..MethodContext::default()
+        }
     }
 }
 
@@ -189,14 +208,10 @@ pub const NOT_BUILT: &str = "not built yet";
 
 /// The methods of DESIGN's list that pvsd does not have yet, with what
 /// each will be for; one that gets built leaves this list by itself.
-const PLANNED: [(&str, &str); 3] = [
+const PLANNED: [(&str, &str); 2] = [
     (
         "ddo",
         "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
-    ),
-    (
-        "gpu",
-        "hardware occlusion queries on a Vulkan device, lavapipe on the CPU (Tai & Hsu)",
     ),
     (
         "raster",

@@ -32,6 +32,23 @@ impl Object {
     pub fn triangle_count(&self) -> u32 {
         self.triangles.end - self.triangles.start
     }
+
+    /// The object's triangle ranges that are not see-through: what hides
+    /// what lies behind it.
+    pub fn opaque_ranges(&self) -> Vec<Range<u32>> {
+        let mut out = Vec::new();
+        let mut at = self.triangles.start;
+        for r in &self.see_through {
+            if r.start > at {
+                out.push(at..r.start);
+            }
+            at = at.max(r.end);
+        }
+        if at < self.triangles.end {
+            out.push(at..self.triangles.end);
+        }
+        out
+    }
 }
 
 /// A scene held by pvsd: objects and their triangles around an `f64` origin.

@@ -123,7 +123,7 @@ pub(super) fn render(scene: &Scene, camera: &Camera) -> Truth {
                 tied: vec![0; n],
             };
             for o in &objects {
-                for r in opaque_ranges(o) {
+                for r in o.opaque_ranges() {
                     for t in &scene.triangles()[r.start as usize..r.end as usize] {
                         rasterize(&eye, t, y0..y1, |x, y, z| {
                             band[(y - y0) * eye.width + x].opaque(z, o.id)
@@ -185,22 +185,6 @@ pub(super) fn render(scene: &Scene, camera: &Camera) -> Truth {
         }
     }
     truth
-}
-
-/// The object's triangle ranges that are not see-through.
-fn opaque_ranges(o: &Object) -> Vec<Range<u32>> {
-    let mut out = Vec::new();
-    let mut at = o.triangles.start;
-    for r in &o.see_through {
-        if r.start > at {
-            out.push(at..r.start);
-        }
-        at = at.max(r.end);
-    }
-    if at < o.triangles.end {
-        out.push(at..o.triangles.end);
-    }
-    out
 }
 
 /// Calls `frag(x, y, depth)` for every pixel centre in `rows` that the

@@ -261,3 +261,23 @@ pub fn cuboid(min: glam::Vec3, max: glam::Vec3) -> Vec<[DVec3; 3]> {
         .map(|t| t.map(|v| v.as_dvec3()))
         .collect()
 }
+
+/// The machine's Vulkan device for the gpu tests, or `None` after saying
+/// how to get one. With `PVSD_REQUIRE_GPU` set (CI sets it), a machine
+/// without one fails instead: the gpu method must not go unchecked there.
+pub fn gpu_or_skip(test: &str) -> Option<Arc<pvsd::cull::gpu::Gpu>> {
+    match pvsd::cull::gpu::Gpu::of_this_machine() {
+        Ok(gpu) => Some(gpu),
+        Err(reason) if std::env::var_os("PVSD_REQUIRE_GPU").is_some() => {
+            panic!("{test}: PVSD_REQUIRE_GPU is set, but gpu cannot run here: {reason}")
+        }
+        Err(reason) => {
+            eprintln!(
+                "{test}: skipped, no Vulkan device ({reason}); `apt-get install \
+                 mesa-vulkan-drivers` gives lavapipe, and PVSD_REQUIRE_GPU=1 \
+                 makes this a failure"
+            );
+            None
+        }
+    }
+}
