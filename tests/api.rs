@@ -57,22 +57,24 @@ async fn health_scenes_and_objects() {
     assert_eq!(scenes.len(), 1);
     assert_eq!((scenes[0].id.as_str(), scenes[0].objects), ("city", 201));
     assert_eq!(scenes[0].up, [0.0, 1.0, 0.0]);
-    // Registry order, which is DESIGN's.
-    assert_eq!(
-        scenes[0].methods,
-        vec!["frustum", "occlusion_tree", "supporting_planes", "horizon"]
-    );
+    // Registry order, which is DESIGN's; gpu where the machine has Vulkan.
+    let gpu = pvsd::cull::gpu::Gpu::of_this_machine();
+    let mut methods = vec!["frustum", "occlusion_tree", "supporting_planes", "horizon"];
+    let mut unsupported = vec!["ddo", "raster"];
+    match &gpu {
+        Ok(_) => methods.push("gpu"),
+        Err(_) => unsupported.insert(1, "gpu"),
+    }
+    assert_eq!(scenes[0].methods, methods);
     // Every other method of DESIGN's list is there with its reason.
-    let unsupported: Vec<&str> = scenes[0].unsupported.keys().map(String::as_str).collect();
-    assert_eq!(unsupported, ["ddo", "gpu", "raster"]);
-    assert!(
-        scenes[0]
-            .unsupported
-            .values()
-            .all(|why| why == pvsd::cull::NOT_BUILT),
-        "{:?}",
-        scenes[0].unsupported
-    );
+    let listed: Vec<&str> = scenes[0].unsupported.keys().map(String::as_str).collect();
+    assert_eq!(listed, unsupported);
+    for (method, why) in &scenes[0].unsupported {
+        match &gpu {
+            Err(reason) if method == "gpu" => assert_eq!(why, reason),
+            _ => assert_eq!(why, pvsd::cull::NOT_BUILT, "{method}"),
+        }
+    }
     let (status, body) = call(&s, "GET", "/scenes/city/objects", None).await;
     assert_eq!(status, StatusCode::OK);
     let objects: Vec<ObjectInfo> = serde_json::from_value(body).unwrap();

@@ -207,14 +207,13 @@ pub fn checked_methods(
 /// refuse cameras that check nothing.
 pub fn check_camera(methods: &SceneMethods, registry: &Registry, cam: Camera) -> usize {
     let scene = methods.scene();
-    let truth = pvsd::truth::Truth::render(
-        scene,
-        &Camera {
-            viewport: CHECK_VIEWPORT,
-            ..cam
-        },
-    )
-    .unwrap();
+    // Truth and methods at the same viewport: a method that samples pixels
+    // (gpu) answers for its view's pixel centres, as truth does.
+    let cam = Camera {
+        viewport: CHECK_VIEWPORT,
+        ..cam
+    };
+    let truth = pvsd::truth::Truth::render(scene, &cam).unwrap();
     let view = pvsd::cull::View::new(cam, scene).unwrap();
     let visible = truth.visible();
     for (label, method, options) in checked_methods(methods, registry) {

@@ -18,9 +18,13 @@
 //! eye's view); it is visible when it touches the frustum.
 //!
 //! Why a query cannot drop a visible object. The depth buffer holds only
-//! triangles of objects found visible (opaque ones; see-through triangles
-//! are never drawn), so at every pixel it lies at or behind the nearest
-//! surface ground truth sees there. Where truth sees an object, the ray
+//! real opaque surfaces: triangles of objects found visible and occluder
+//! polygons merged from one object's own triangles (see-through triangles
+//! are never drawn), each pulled in from its outer edges by 1/16 pixel
+//! (`shaders/erode.frag`: the rasterizer snaps vertices to a subpixel grid,
+//! and without it a surface could cover a pixel centre that ground truth,
+//! in `f64`, leaves uncovered). So at every pixel the depth buffer lies at
+//! or behind the nearest surface ground truth sees there. Where truth sees an object, the ray
 //! through that pixel's centre enters the object's box no later than it
 //! meets the object, so a query of the box passes the depth test there
 //! (the test is `≥` in reversed depth). The box sent is enlarged so that
