@@ -13,7 +13,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pvsd::cull::{AUTO_CHOICE, MethodSpec, Registry, SceneMethods, View, VisibleSet};
 use pvsd::eval::{EvalParams, WalkParams};
 use pvsd::geom::Camera;
-use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
+use pvsd::scene::generate::{CityOptions, CrowdOptions, OfficeOptions, city, crowd, office};
 use pvsd::scene::{Scene, load_path, load_slice};
 use pvsd::server::config::ServeConfig;
 use pvsd::server::{AppState, shutdown_signal};
@@ -156,6 +156,23 @@ enum GenCommand {
         #[arg(short, long, value_name = "FILE.glb")]
         output: PathBuf,
     },
+    /// Many small objects between rows of walls on a ground, half of them
+    /// movable (`extras.movable`: `PUT /scenes/{id}/objects/{oid}` moves
+    /// them), after Tai & Hsu's dynamic scene.
+    Crowd {
+        /// Seed of the random layout.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Small objects; every other one is movable.
+        #[arg(long, default_value_t = 2000)]
+        objects: u32,
+        /// Translate the whole scene by x,y,z.
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, value_name = "X,Y,Z")]
+        offset: Option<DVec3>,
+        /// Output file (.glb).
+        #[arg(short, long, value_name = "FILE.glb")]
+        output: PathBuf,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -275,7 +292,8 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         config.limits(),
         &Registry::standard(),
         &config.method_context(),
-    )?;
+    )?
+    .with_admin_token(config.admin_token.clone());
     let addr = args
         .addr
         .or(config.addr)
@@ -339,6 +357,19 @@ fn generate(cmd: GenCommand) -> anyhow::Result<()> {
                 output,
             )
         }
+        GenCommand::Crowd {
+            seed,
+            objects,
+            offset: o,
+            output,
+        } => (
+            crowd(&CrowdOptions {
+                seed,
+                objects,
+                offset: offset(o),
+            }),
+            output,
+        ),
     };
     let bytes = doc.to_glb();
     bar.finish_and_clear();

@@ -8,7 +8,9 @@ mod common;
 
 use std::sync::Arc;
 
-use common::{check_conservative, checked_methods, city_scene, office_scene, shared_scene};
+use common::{
+    check_conservative, checked_methods, city_scene, crowd_scene, office_scene, shared_scene,
+};
 use pvsd::cull::frustum::FrustumCulling;
 use pvsd::cull::{
     CullCounters, CullError, CullMethod, MethodContext, MethodEntry, MethodError, MethodOptions,
@@ -28,8 +30,9 @@ struct Row {
 }
 
 /// The table's rows: the generated city and office (at the origin and at a
-/// 1e7 offset) and the real scenes.
-const ROWS: [Row; 7] = [
+/// 1e7 offset), a crowd whose movable half every method culls as dynamic
+/// occludees, and the real scenes.
+const ROWS: [Row; 8] = [
     Row {
         name: "city_1k",
         scene: || city_scene(1000, 1, [0.0; 3]),
@@ -49,6 +52,11 @@ const ROWS: [Row; 7] = [
         name: "office_at_1e7",
         scene: || office_scene(2, [1e7, -1e6, 1e7]),
         walks: &[WalkKind::Random],
+    },
+    Row {
+        name: "crowd",
+        scene: || crowd_scene(1000, 3),
+        walks: &[WalkKind::Street, WalkKind::Random],
     },
     Row {
         name: "sponza",
@@ -126,6 +134,11 @@ fn office() {
 #[test]
 fn office_at_1e7() {
     row("office_at_1e7");
+}
+
+#[test]
+fn crowd() {
+    row("crowd");
 }
 
 #[test]

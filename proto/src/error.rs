@@ -75,6 +75,16 @@ error_codes! {
     UpgradeRequired = "upgrade_required",
     /// 400: the query string is not one the route takes.
     InvalidQuery = "invalid_query",
+    /// 401: a route that changes a scene, without the server's admin token (`Authorization: Bearer …`).
+    Unauthorized = "unauthorized",
+    /// 403: the server has no admin token configured, so nothing may change its scenes.
+    Forbidden = "forbidden",
+    /// 404: the scene has no object with this id.
+    UnknownObject = "unknown_object",
+    /// 409: the object is part of the static scene; only objects the file marks movable move.
+    StaticObject = "static_object",
+    /// 400: the transform has a NaN, an infinity, or a zero scale.
+    InvalidTransform = "invalid_transform",
 }
 
 impl std::fmt::Display for ErrorCode {

@@ -197,6 +197,23 @@ pub struct ObjectInfo {
     pub bounds: Option<Bounds>,
 }
 
+/// The body of `PUT /scenes/{id}/objects/{oid}`: the object's new world
+/// transform, as a glTF node's (translation, then rotation, then scale;
+/// each optional, identity when absent).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MoveRequest {
+    /// World translation `[x, y, z]`.
+    #[serde(default)]
+    pub translation: Option<[f64; 3]>,
+    /// World rotation, a unit quaternion `[x, y, z, w]`.
+    #[serde(default)]
+    pub rotation: Option<[f64; 4]>,
+    /// Scale `[x, y, z]`, applied first.
+    #[serde(default)]
+    pub scale: Option<[f64; 3]>,
+}
+
 /// The `stats` of an answer: what it cost.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct Stats {

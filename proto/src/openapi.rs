@@ -39,6 +39,7 @@ use crate::error::ErrorBody;
         operations::healthz,
         operations::scenes,
         operations::objects,
+        operations::move_object,
         operations::visible,
         operations::create_session,
         operations::frames,
@@ -121,8 +122,8 @@ mod operations {
     use super::{Refused, XPvs};
     use crate::error::ErrorBody;
     use crate::json::{
-        FrameResponse, ObjectInfo, SceneInfo, SessionCreated, SessionRequest, UserJoined,
-        ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo,
+        FrameResponse, MoveRequest, ObjectInfo, SceneInfo, SessionCreated, SessionRequest,
+        UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo,
     };
 
     /// `{id}`: a scene.
@@ -132,6 +133,15 @@ mod operations {
         /// A scene's id: its file stem.
         #[param(example = "city")]
         id: String,
+    }
+
+    /// `{oid}`: an object of the scene.
+    #[derive(IntoParams)]
+    #[into_params(parameter_in = Path)]
+    struct ObjectId {
+        /// An object id (DESIGN "Scenes": stable across loads).
+        #[param(example = 0)]
+        oid: u32,
     }
 
     /// `{sid}`: a session.
@@ -198,6 +208,35 @@ mod operations {
         )
     )]
     fn objects() {}
+
+    /// Moves an object the scene file marks movable (`extras.movable`):
+    /// its new world transform replaces the one it was loaded with, and
+    /// every client's next answer culls it where it is now. Needs the
+    /// server's admin token.
+    #[utoipa::path(
+        put,
+        path = "/scenes/{id}/objects/{oid}",
+        tag = "scenes",
+        params(
+            SceneId,
+            ObjectId,
+            ("Authorization" = String, Header, description = "`Bearer <admin_token>` (the server's config)"),
+        ),
+        request_body(
+            content = MoveRequest,
+            content_type = "application/json",
+            example = json!({"translation": [12.5, 0, -3], "rotation": [0, 0.3826834, 0, 0.9238795]})
+        ),
+        responses(
+            (status = 200, description = "The object where it is now", body = ObjectInfo),
+            (status = 400, response = Refused),
+            (status = 401, response = Refused),
+            (status = 403, response = Refused),
+            (status = 404, response = Refused),
+            (status = 409, response = Refused),
+        )
+    )]
+    fn move_object() {}
 
     /// The potentially visible set of one view.
     ///

@@ -24,6 +24,11 @@
 //! - a job lost with its blocking thread (a bug: panics are caught before
 //!   that) is an internal error, never a fallback that could not answer the
 //!   job's dynamic occludees.
+//!
+//! Every path culls the scene's movable objects ([`crate::scene::Motion`])
+//! as dynamic occludees after the job's avatars ([`add_movers`]), and
+//! those found visible join the answer ([`take_movers`]): they are in no
+//! method's static structures, so no method knows them otherwise.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
@@ -35,6 +40,7 @@ use super::{
     SceneMethods, View,
 };
 use crate::geom::Aabb;
+use crate::scene::Scene;
 
 /// A job after its cull, with what the cull cost and found.
 #[derive(Debug)]
@@ -115,10 +121,77 @@ fn lost(method: &dyn Culler, how: impl std::fmt::Display) -> Ran {
     })
 }
 
+/// Adds `scene`'s movable objects, at their current boxes, to the job's
+/// dynamic occludees after its avatars; returns how many avatars it had.
+pub fn add_movers(scene: &Scene, job: &mut CullJob) -> usize {
+    let avatars = job.occludees.boxes().len();
+    if !scene.motion().is_empty() {
+        let mut boxes = Vec::with_capacity(scene.motion().len());
+        scene.motion().extend_boxes(&mut boxes);
+        job.occludees.extend_boxes(boxes);
+    }
+    avatars
+}
+
+/// After a cull: the movable objects found visible join the answer (ids
+/// stay ascending), and the occludees are the job's avatars again.
+pub fn take_movers(scene: &Scene, job: &mut CullJob, avatars: usize) -> u64 {
+    let motion = scene.motion();
+    if motion.is_empty() || job.occludees.boxes().len() <= avatars {
+        job.occludees.truncate(avatars);
+        return 0;
+    }
+    let mut added = 0;
+    // With pixel bounds, a mover's is the whole view (no tighter one known).
+    let [w, h] = job.view.camera().viewport;
+    let areas = job.out.areas().is_some();
+    let shown: Vec<bool> = job.occludees.visible()[avatars..].to_vec();
+    for (id, shown) in motion.ids().zip(shown) {
+        if shown && !job.out.contains(id) {
+            if areas {
+                job.out.push_with_area(id, w as f64 * h as f64);
+            } else {
+                job.out.push(id);
+            }
+            added += 1;
+        }
+    }
+    job.out.finish();
+    job.occludees.truncate(avatars);
+    added
+}
+
 impl SceneMethods {
     /// Culls `job` with `method` where the method runs, without blocking
-    /// the async worker for more than an inline method's microseconds.
+    /// the async worker for more than an inline method's microseconds. The
+    /// scene's movable objects are culled as dynamic occludees.
     pub async fn cull(
+        &self,
+        method: &Arc<dyn Culler>,
+        mut job: CullJob,
+    ) -> Result<Culled, Unanswered> {
+        let avatars = add_movers(self.scene(), &mut job);
+        let ran = self.cull_moved(method, job).await;
+        self.settle_movers(ran, avatars)
+    }
+
+    /// The movers' part of an answer ([`take_movers`]).
+    fn settle_movers(&self, ran: Ran, avatars: usize) -> Ran {
+        match ran {
+            Ok(mut culled) => {
+                culled.stats.visible += take_movers(self.scene(), &mut culled.job, avatars);
+                Ok(culled)
+            }
+            Err(mut unanswered) => {
+                if let Some(job) = unanswered.job.as_mut() {
+                    job.occludees.truncate(avatars);
+                }
+                Err(unanswered)
+            }
+        }
+    }
+
+    async fn cull_moved(
         &self,
         method: &Arc<dyn Culler>,
         mut job: CullJob,
@@ -168,11 +241,13 @@ impl SceneMethods {
     pub fn cull_blocking(
         &self,
         method: &Arc<dyn Culler>,
-        job: CullJob,
+        mut job: CullJob,
     ) -> Result<Culled, Unanswered> {
         let start = Instant::now();
+        let avatars = add_movers(self.scene(), &mut job);
         let ran = run_waiting(method, job);
-        self.settle(method, start, ran)
+        let ran = self.settle(method, start, ran);
+        self.settle_movers(ran, avatars)
     }
 
     /// Turns a method's result into an answer: its own, or frustum
@@ -234,9 +309,18 @@ impl SceneMethods {
 /// Culls `job` with `method` on the calling thread, waiting for a device
 /// method's device, with no fallback: for callers that report a failure
 /// themselves (eval measures a method, not its fallback; tests must see a
-/// method fail). Never call it from an async worker.
-pub fn cull_here(method: &Arc<dyn Culler>, job: CullJob) -> Result<Culled, CullError> {
-    run_waiting(method, job).map_err(|u| u.error)
+/// method fail). `scene`'s movable objects are culled as dynamic
+/// occludees, as [`SceneMethods::cull`] does. Never call it from an async
+/// worker.
+pub fn cull_here(
+    scene: &Scene,
+    method: &Arc<dyn Culler>,
+    mut job: CullJob,
+) -> Result<Culled, CullError> {
+    let avatars = add_movers(scene, &mut job);
+    let mut culled = run_waiting(method, job).map_err(|u| u.error)?;
+    culled.stats.visible += take_movers(scene, &mut culled.job, avatars);
+    Ok(culled)
 }
 
 /// Runs `job` where `method` runs, waiting on this thread.

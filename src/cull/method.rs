@@ -107,10 +107,10 @@ pub struct CullStats {
     pub fallback: Option<Fallback>,
 }
 
-/// Boxes that are not part of the scene and move between frames (dynamic
-/// occludees: the avatars of a walkthrough's other users), in the scene's
-/// local coordinates, and what a cull found of each. They never hide
-/// anything.
+/// Boxes that move between frames (dynamic occludees: the avatars of a
+/// walkthrough's other users, and the scene's movable objects, which the
+/// dispatch adds after them), in the scene's local coordinates, and what a
+/// cull found of each. They never hide anything.
 #[derive(Clone, Debug, Default)]
 pub struct Occludees {
     boxes: Vec<Aabb>,
@@ -123,6 +123,18 @@ impl Occludees {
         self.boxes.clear();
         self.boxes.extend(boxes);
         self.visible.clear();
+    }
+
+    /// Adds boxes after those set (every answer is cleared).
+    pub fn extend_boxes(&mut self, boxes: impl IntoIterator<Item = Aabb>) {
+        self.boxes.extend(boxes);
+        self.visible.clear();
+    }
+
+    /// Keeps the first `len` boxes and their answers.
+    pub fn truncate(&mut self, len: usize) {
+        self.boxes.truncate(len);
+        self.visible.truncate(len);
     }
 
     /// The boxes.

@@ -381,7 +381,7 @@ impl SceneMethods {
         out: &mut VisibleSet,
     ) -> Result<CullStats, CullOnceError> {
         let (method, cache) = self.prepare_client(spec)?;
-        let culled = cull_here(&method, CullJob::new(*view, cache))?;
+        let culled = cull_here(&self.scene, &method, CullJob::new(*view, cache))?;
         *out = culled.job.out;
         Ok(culled.stats)
     }

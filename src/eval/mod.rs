@@ -184,8 +184,8 @@ pub fn run(
                 .expect("a contender's cache is back after each frame");
             let mut job = CullJob::new(view, cache);
             job.out = std::mem::take(&mut out);
-            let culled =
-                cull_here(&c.method, job).map_err(|error| EvalError::Cull { frame, error })?;
+            let culled = cull_here(scene, &c.method, job)
+                .map_err(|error| EvalError::Cull { frame, error })?;
             let stats = culled.stats;
             c.cache = Some(culled.job.cache);
             out = culled.job.out;

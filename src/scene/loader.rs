@@ -190,7 +190,10 @@ fn walk(
                 .or(mesh.name())
                 .map(str::to_owned)
                 .unwrap_or_else(|| format!("object_{}", builder.object_count()));
-            builder.begin_object(name, occluder_hint(&node));
+            builder.begin_object(name, extra_flag(&node, "occluder"));
+            if extra_flag(&node, "movable") == Some(true) {
+                builder.set_movable(world);
+            }
             for prim in mesh.primitives() {
                 let tris = read_triangles(&prim, buffers, &world).map_err(|e| {
                     format!("mesh {} primitive {}: {e}", mesh.index(), prim.index())
@@ -205,11 +208,12 @@ fn walk(
     Ok(())
 }
 
-/// `extras.occluder` as written by `pvsd gen` (and any tool that follows it).
-fn occluder_hint(node: &gltf::Node<'_>) -> Option<bool> {
+/// A boolean of the node's `extras`, as written by `pvsd gen` (and any
+/// tool that follows it): `occluder`, `movable`.
+fn extra_flag(node: &gltf::Node<'_>, key: &str) -> Option<bool> {
     let raw = node.extras().as_ref()?;
     let v: serde_json::Value = serde_json::from_str(raw.get()).ok()?;
-    v.get("occluder")?.as_bool()
+    v.get(key)?.as_bool()
 }
 
 /// DESIGN: `BLEND` or `MASK` alpha, or any transmission, makes a surface see-through.

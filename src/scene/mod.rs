@@ -7,6 +7,8 @@ pub mod generate;
 pub mod glb;
 mod loader;
 mod model;
+pub mod motion;
 
 pub use loader::{LoadError, load_path, load_slice};
 pub use model::{Object, Scene, SceneBuilder};
+pub use motion::{Motion, MoveError};

@@ -6,8 +6,9 @@
 
 use std::ops::Range;
 
-use glam::{DVec3, Vec3};
+use glam::{DMat4, DVec3, Vec3};
 
+use super::Motion;
 use crate::geom::Aabb;
 
 /// One object: a mesh-bearing node instance of the scene file.
@@ -25,12 +26,22 @@ pub struct Object {
     pub see_through: Vec<Range<u32>>,
     /// The file's `extras.occluder` flag, when it has one (walls, floors, facades).
     pub occluder_hint: Option<bool>,
+    /// The file's `extras.movable` flag: the object may be moved while
+    /// served, so it stays out of every method's static structures and is
+    /// culled at its current box ([`Motion`]).
+    pub movable: bool,
 }
 
 impl Object {
     /// How many triangles the object has.
     pub fn triangle_count(&self) -> u32 {
         self.triangles.end - self.triangles.start
+    }
+
+    /// Whether the object belongs in a method's static structures: it has
+    /// a box (it can show a pixel) and cannot move.
+    pub fn is_static(&self) -> bool {
+        !self.bounds.is_empty() && !self.movable
     }
 
     /// The object's triangle ranges that are not see-through: what hides
@@ -65,12 +76,29 @@ pub struct Scene {
     pub(crate) objects: Vec<Object>,
     pub(crate) triangles: Vec<[Vec3; 3]>,
     pub(crate) bounds: Aabb,
+    pub(crate) motion: Motion,
 }
 
 impl Scene {
     /// Every object, indexed by id.
     pub fn objects(&self) -> &[Object] {
         &self.objects
+    }
+
+    /// Where the movable objects are now.
+    pub fn motion(&self) -> &Motion {
+        &self.motion
+    }
+
+    /// The current box of object `id`: where it was loaded, or where it
+    /// was moved to.
+    pub fn current_bounds(&self, id: u32) -> Option<Aabb> {
+        let o = self.objects.get(id as usize)?;
+        if o.movable {
+            self.motion.bounds_of(id)
+        } else {
+            Some(o.bounds)
+        }
     }
 
     /// Every triangle (scene-local); objects own contiguous ranges.
@@ -121,6 +149,8 @@ pub struct SceneBuilder {
 struct PendingObject {
     name: String,
     occluder_hint: Option<bool>,
+    /// The world transform of a movable object.
+    movable: Option<DMat4>,
     triangles: Vec<[DVec3; 3]>,
     see_through: Vec<Range<u32>>,
 }
@@ -144,10 +174,23 @@ impl SceneBuilder {
         self.objects.push(PendingObject {
             name: name.into(),
             occluder_hint,
+            movable: None,
             triangles: Vec::new(),
             see_through: Vec::new(),
         });
         (self.objects.len() - 1) as u32
+    }
+
+    /// Marks the current object movable; `world` is the transform its
+    /// triangles were placed with (its node's world matrix).
+    ///
+    /// # Panics
+    /// If no object was begun.
+    pub fn set_movable(&mut self, world: DMat4) {
+        self.objects
+            .last_mut()
+            .expect("begin_object before set_movable")
+            .movable = Some(world);
     }
 
     /// Adds world-space triangles to the current object.
@@ -189,6 +232,7 @@ impl SceneBuilder {
         let mut triangles = Vec::with_capacity(total);
         let mut objects = Vec::with_capacity(self.objects.len());
         let mut bounds = Aabb::EMPTY;
+        let mut movers = Vec::new();
         for (id, o) in self.objects.into_iter().enumerate() {
             let start = triangles.len() as u32;
             let mut b = Aabb::EMPTY;
@@ -198,6 +242,14 @@ impl SceneBuilder {
                 triangles.push(local);
             }
             bounds.merge(&b);
+            // A movable object without triangles shows nothing wherever it
+            // is, and one whose transform has no inverse cannot be carried.
+            let movable = o
+                .movable
+                .filter(|m| !b.is_empty() && m.determinant().is_normal());
+            if let Some(world) = movable {
+                movers.push((id as u32, world, b));
+            }
             objects.push(Object {
                 id: id as u32,
                 name: o.name,
@@ -209,6 +261,7 @@ impl SceneBuilder {
                     .map(|r| r.start + start..r.end + start)
                     .collect(),
                 occluder_hint: o.occluder_hint,
+                movable: movable.is_some(),
             });
         }
         Scene {
@@ -217,6 +270,7 @@ impl SceneBuilder {
             objects,
             triangles,
             bounds,
+            motion: Motion::new(movers, origin),
         }
     }
 }

@@ -49,6 +49,9 @@ pub struct ServeConfig {
     /// Methods the operator turns off (`/scenes` lists them as unsupported).
     #[serde(default)]
     pub disabled_methods: Vec<String>,
+    /// The bearer token of routes that change scenes (`PUT
+    /// /scenes/{id}/objects/{oid}`); without one they answer 403.
+    pub admin_token: Option<String>,
 }
 
 /// A config file that could not be used.

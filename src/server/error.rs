@@ -11,6 +11,7 @@ use pvsd_proto::error::{ErrorBody, ErrorCode};
 
 use crate::cull::{CullError, MethodError, Unanswered};
 use crate::geom::CameraError;
+use crate::scene::MoveError;
 
 /// Everything a request can fail with.
 #[derive(Debug, thiserror::Error)]
@@ -93,6 +94,15 @@ pub enum ApiError {
         /// Seconds to wait (the `Retry-After` header).
         retry_after_s: u64,
     },
+    /// A route that changes a scene, without the admin token.
+    #[error("{0}")]
+    Unauthorized(String),
+    /// The server has no admin token, so no one may change its scenes.
+    #[error("changing scenes is off: the server's config has no admin_token (set one to allow it)")]
+    Forbidden,
+    /// The object was not moved.
+    #[error(transparent)]
+    Move(#[from] MoveError),
     /// A bug or an unexpected failure; details go to the log only.
     #[error("internal error")]
     Internal(String),
@@ -169,6 +179,13 @@ impl ApiError {
             }
             ApiError::Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::Timeout),
             ApiError::Busy { .. } => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::Busy),
+            ApiError::Unauthorized(_) => (StatusCode::UNAUTHORIZED, ErrorCode::Unauthorized),
+            ApiError::Forbidden => (StatusCode::FORBIDDEN, ErrorCode::Forbidden),
+            ApiError::Move(e) => match e {
+                MoveError::Unknown(_) => (StatusCode::NOT_FOUND, ErrorCode::UnknownObject),
+                MoveError::Static(_) => (StatusCode::CONFLICT, ErrorCode::StaticObject),
+                MoveError::Transform(_) => (StatusCode::BAD_REQUEST, ErrorCode::InvalidTransform),
+            },
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Internal),
         }
     }
@@ -192,10 +209,19 @@ impl ApiError {
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let mut response = (self.status_and_code().0, Json(self.body())).into_response();
-        if let ApiError::Busy { retry_after_s, .. } = self {
-            response
-                .headers_mut()
-                .insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+        match self {
+            ApiError::Busy { retry_after_s, .. } => {
+                response
+                    .headers_mut()
+                    .insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+            }
+            ApiError::Unauthorized(_) => {
+                response.headers_mut().insert(
+                    header::WWW_AUTHENTICATE,
+                    HeaderValue::from_static("Bearer realm=\"pvsd\""),
+                );
+            }
+            _ => {}
         }
         response
     }

@@ -69,6 +69,11 @@ fn routes() -> Routes {
     .add(Method::GET, "/healthz", routes::healthz)
     .add(Method::GET, "/scenes", routes::scenes)
     .add(Method::GET, "/scenes/{id}/objects", routes::objects)
+    .add(
+        Method::PUT,
+        "/scenes/{id}/objects/{oid}",
+        routes::move_object,
+    )
     .add(Method::POST, "/scenes/{id}/visible", routes::visible)
     .add(Method::POST, "/sessions", routes::create_session)
     .add(Method::POST, "/sessions/{sid}/frames", routes::frames)

@@ -11,8 +11,8 @@ use axum::extract::{OriginalUri, Path, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use pvsd_proto::json::{
-    Bounds, FrameResponse, ObjectInfo, SceneInfo, SessionCreated, SessionRequest, UserJoined,
-    ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo,
+    Bounds, FrameResponse, MoveRequest, ObjectInfo, SceneInfo, SessionCreated, SessionRequest,
+    UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo,
 };
 use pvsd_proto::xpvs as binary;
 
@@ -20,8 +20,9 @@ use super::error::ApiError;
 use super::extract::{RawBody, parse};
 use super::session::Session;
 use super::state::AppState;
-use super::wire::{BoundsExt, ViewRequestExt, method_spec};
+use super::wire::{BoundsExt, MoveRequestExt, ViewRequestExt, method_spec};
 use crate::cull::{CullJob, MethodSpec, SceneMethods, View};
+use crate::scene::MoveError;
 
 /// `GET /healthz`: 200 while the server runs.
 pub async fn healthz() -> &'static str {
@@ -60,15 +61,46 @@ pub async fn objects(
 ) -> Result<Json<Vec<ObjectInfo>>, ApiError> {
     let s = state.scene(&id)?.scene();
     Ok(Json(
-        s.objects()
-            .iter()
-            .map(|o| ObjectInfo {
-                id: o.id,
-                name: o.name.clone(),
-                bounds: (!o.bounds.is_empty()).then(|| Bounds::new(s.to_world(&o.bounds))),
-            })
-            .collect(),
+        s.objects().iter().map(|o| object_info(s, o.id)).collect(),
     ))
+}
+
+/// `PUT /scenes/{id}/objects/{oid}`: moves a movable object (admin only).
+pub async fn move_object(
+    State(state): State<AppState>,
+    Path((id, oid)): Path<(String, String)>,
+    headers: HeaderMap,
+    RawBody(body): RawBody,
+) -> Result<Json<ObjectInfo>, ApiError> {
+    // Refused before anything else is read: an unauthorized client learns
+    // nothing about the scene.
+    let authorization = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok());
+    state.authorize_admin(authorization)?;
+    let methods = state.scene(&id)?;
+    let scene = methods.scene();
+    // An id that is no number names no object.
+    let oid: u32 = oid
+        .parse()
+        .map_err(|_| ApiError::Move(MoveError::Unknown(oid.clone())))?;
+    let req: MoveRequest = parse(&body)?;
+    let to = req.transform()?;
+    scene
+        .motion()
+        .place(oid, to, scene.origin, scene.objects().len())?;
+    Ok(Json(object_info(scene, oid)))
+}
+
+/// One entry of `GET /scenes/{id}/objects`, at the object's current box.
+fn object_info(scene: &crate::scene::Scene, id: u32) -> ObjectInfo {
+    let o = &scene.objects()[id as usize];
+    let bounds = scene.current_bounds(id).unwrap_or(o.bounds);
+    ObjectInfo {
+        id,
+        name: o.name.clone(),
+        bounds: (!bounds.is_empty()).then(|| Bounds::new(scene.to_world(&bounds))),
+    }
 }
 
 /// Whether the client asked for `application/x-pvs` (`Accept`).

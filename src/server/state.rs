@@ -82,6 +82,8 @@ struct Shared {
     sessions: Sessions,
     /// Live walkthroughs.
     walkthroughs: Walkthroughs,
+    /// The bearer token of routes that change scenes; none: they are off.
+    admin_token: Option<String>,
 }
 
 /// Two scenes with one id: ids must name one scene each.
@@ -129,8 +131,50 @@ impl AppState {
                 limits,
                 sessions,
                 walkthroughs,
+                admin_token: None,
             }),
         })
+    }
+
+    /// This state with routes that change scenes (moving objects) open to
+    /// requests bearing `token`; without one they answer 403.
+    ///
+    /// # Panics
+    /// Once the state is shared (cloned): set it right after making it.
+    pub fn with_admin_token(mut self, token: Option<String>) -> AppState {
+        Arc::get_mut(&mut self.inner)
+            .expect("the admin token is set before the state is shared")
+            .admin_token = token.filter(|t| !t.is_empty());
+        self
+    }
+
+    /// Checks a request's `Authorization` header against the admin token:
+    /// 403 when the server has none, 401 when it is missing or wrong.
+    pub fn authorize_admin(&self, authorization: Option<&str>) -> Result<(), ApiError> {
+        let Some(token) = &self.inner.admin_token else {
+            return Err(ApiError::Forbidden);
+        };
+        let given = authorization
+            .and_then(|h| h.strip_prefix("Bearer "))
+            .ok_or_else(|| {
+                ApiError::Unauthorized(
+                    "this route needs 'Authorization: Bearer <admin_token>'".into(),
+                )
+            })?;
+        // Compared in time independent of where they differ.
+        let same = given.len() == token.len()
+            && given
+                .bytes()
+                .zip(token.bytes())
+                .fold(0u8, |acc, (a, b)| acc | (a ^ b))
+                == 0;
+        if same {
+            Ok(())
+        } else {
+            Err(ApiError::Unauthorized(
+                "the bearer token is not the admin token".into(),
+            ))
+        }
     }
 
     /// Every scene, by id.

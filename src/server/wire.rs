@@ -7,12 +7,13 @@
 //! ([`ViewRequestExt`], [`BoundsExt`]): the orphan rules keep inherent
 //! methods on a type to its own crate.
 
-use glam::DVec3;
-use pvsd_proto::json::{Bounds, Number, Stats, ViewRequest};
+use glam::{DMat4, DQuat, DVec3};
+use pvsd_proto::json::{Bounds, MoveRequest, Number, Stats, ViewRequest};
 
 use super::error::ApiError;
 use crate::cull::{CullStats, MethodOptions, MethodSpec};
 use crate::geom::Camera;
+use crate::scene::MoveError;
 
 fn vec3(v: [Number; 3]) -> DVec3 {
     DVec3::new(v[0].0, v[1].0, v[2].0)
@@ -108,6 +109,34 @@ pub fn method_spec(
     }
     spec.options = opts;
     Ok(spec)
+}
+
+/// The library's side of a [`MoveRequest`].
+pub trait MoveRequestExt {
+    /// The world transform asked for; a rotation that is not a unit
+    /// quaternion is refused (glTF's rule), as is any non-finite number.
+    fn transform(&self) -> Result<DMat4, MoveError>;
+}
+
+impl MoveRequestExt for MoveRequest {
+    fn transform(&self) -> Result<DMat4, MoveError> {
+        let t = DVec3::from(self.translation.unwrap_or([0.0; 3]));
+        let r = DQuat::from_array(self.rotation.unwrap_or([0.0, 0.0, 0.0, 1.0]));
+        let s = DVec3::from(self.scale.unwrap_or([1.0; 3]));
+        if !(t.is_finite() && r.is_finite() && s.is_finite()) {
+            return Err(MoveError::Transform(
+                "has a number that is not finite".into(),
+            ));
+        }
+        if (r.length() - 1.0).abs() > 1e-3 {
+            return Err(MoveError::Transform(format!(
+                "rotation {:?} is not a unit quaternion (length {})",
+                r.to_array(),
+                r.length()
+            )));
+        }
+        Ok(DMat4::from_scale_rotation_translation(s, r.normalize(), t))
+    }
 }
 
 /// [`Bounds`] from the library's boxes.

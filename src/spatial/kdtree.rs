@@ -89,12 +89,13 @@ pub struct KdTree {
 }
 
 impl KdTree {
-    /// Builds the tree over every object with a non-empty box.
+    /// Builds the tree over every static object ([`Object::is_static`]:
+    /// with a box, not movable).
     pub fn build(scene: &Scene, params: KdTreeParams) -> KdTree {
         let objects = scene.objects();
         let items: Vec<u32> = objects
             .iter()
-            .filter(|o| !o.bounds.is_empty())
+            .filter(|o| o.is_static())
             .map(|o| o.id)
             .collect();
         let mut b = Builder {
@@ -151,12 +152,12 @@ impl KdTree {
     pub fn validate(&self, scene: &Scene) -> Result<(), String> {
         let objects = scene.objects();
         let Some(root) = self.root() else {
-            return match objects.iter().find(|o| !o.bounds.is_empty()) {
+            return match objects.iter().find(|o| o.is_static()) {
                 Some(o) => Err(format!("empty tree but object {} has a box", o.id)),
                 None => Ok(()),
             };
         };
-        for o in objects.iter().filter(|o| !o.bounds.is_empty()) {
+        for o in objects.iter().filter(|o| o.is_static()) {
             if !root.cell.contains(&o.bounds) {
                 return Err(format!("root cell does not hold object {}", o.id));
             }

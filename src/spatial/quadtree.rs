@@ -57,7 +57,7 @@ impl QuadTree {
         let placements: Vec<Placement> = scene
             .objects()
             .iter()
-            .filter(|o| !o.bounds.is_empty())
+            .filter(|o| o.is_static())
             .map(|o| {
                 let e = o.bounds.extent();
                 let largest = e.x.max(e.z);
@@ -225,7 +225,7 @@ impl QuadTree {
         }
         for o in scene.objects() {
             let n = count[o.id as usize];
-            if !o.bounds.is_empty() && !(1..=4).contains(&n) {
+            if o.is_static() && !(1..=4).contains(&n) {
                 return Err(format!("object {} is stored in {n} cells", o.id));
             }
         }

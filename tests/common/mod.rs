@@ -41,6 +41,17 @@ pub fn city_scene(buildings: u32, seed: u64, offset: [f32; 3]) -> Arc<Scene> {
     Arc::new(load_slice("city", &doc.to_glb(), None, Path::new("city.glb")).unwrap())
 }
 
+/// A generated crowd (half its things movable), written to glb bytes and
+/// loaded back.
+pub fn crowd_scene(objects: u32, seed: u64) -> Arc<Scene> {
+    let doc = pvsd::scene::generate::crowd(&pvsd::scene::generate::CrowdOptions {
+        seed,
+        objects,
+        ..Default::default()
+    });
+    Arc::new(load_slice("crowd", &doc.to_glb(), None, Path::new("crowd.glb")).unwrap())
+}
+
 /// A generated office, written to glb bytes and loaded back.
 pub fn office_scene(seed: u64, offset: [f32; 3]) -> Arc<Scene> {
     let doc = office(&OfficeOptions {

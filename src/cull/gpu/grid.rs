@@ -50,14 +50,15 @@ pub struct Grid {
 }
 
 impl Grid {
-    /// The grid over `scene`'s objects (those with an empty box, which show
-    /// no pixel, are left out).
+    /// The grid over `scene`'s static objects (those with an empty box show
+    /// no pixel; movable ones are culled where they are now, as dynamic
+    /// occludees).
     pub fn build(scene: &Scene) -> Grid {
         let bounds = scene.bounds();
         let mut sizes: Vec<f32> = scene
             .objects()
             .iter()
-            .filter(|o| !o.bounds.is_empty())
+            .filter(|o| o.is_static())
             .map(|o| o.bounds.extent().max_element())
             .collect();
         if bounds.is_empty() || sizes.is_empty() {
@@ -84,7 +85,7 @@ impl Grid {
         let mut items: Vec<([u32; 3], u32)> = scene
             .objects()
             .iter()
-            .filter(|o| !o.bounds.is_empty())
+            .filter(|o| o.is_static())
             .map(|o| (grid.voxel_of(&o.bounds), o.id))
             .collect();
         grid.nodes.push(Node {

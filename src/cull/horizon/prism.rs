@@ -273,7 +273,7 @@ fn segment_meets_box(a: DVec2, b: DVec2, lo: DVec2, hi: DVec2) -> bool {
 /// Step 1–5 of the module docs for one object.
 fn object_prisms(scene: &Scene, object: &Object, ground: f64) -> Vec<Prism> {
     let b = object.bounds;
-    if b.is_empty() || b.min.y as f64 != ground {
+    if !object.is_static() || b.min.y as f64 != ground {
         // Walls must reach the ground level exactly, or rays pass below them.
         return Vec::new();
     }

@@ -25,7 +25,7 @@ pub(super) fn occluder_polygons(scene: &Scene) -> Vec<Occluder> {
     };
     let mut out = Vec::new();
     for o in scene.objects() {
-        if hinted && o.occluder_hint != Some(true) {
+        if (hinted && o.occluder_hint != Some(true)) || !o.is_static() {
             continue;
         }
         let tris: Vec<[Vec3; 3]> = (o.triangles.start..o.triangles.end)

@@ -5,10 +5,12 @@
 //! same seed gives the same bytes everywhere.
 
 mod city;
+mod crowd;
 mod mesh;
 mod office;
 
 pub use city::{CityOptions, city};
+pub use crowd::{CrowdOptions, crowd};
 pub use mesh::MeshBuilder;
 pub use office::{OfficeOptions, office};
 
