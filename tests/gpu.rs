@@ -9,9 +9,7 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
 use std::ops::Range;
-use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -435,25 +433,11 @@ async fn the_device_worker_serves_200_concurrent_requests() {
 #[test]
 fn without_a_vulkan_driver_gpu_is_unsupported_and_the_server_serves() {
     let nowhere = "/nonexistent/pvsd-no-driver.json";
-    let mut child = Command::new(env!("CARGO_BIN_EXE_pvsd"))
-        .args(["serve", "--addr", "127.0.0.1:0"])
-        // The loader's variables for where drivers are: pointed at nothing.
-        .env("VK_DRIVER_FILES", nowhere)
-        .env("VK_ICD_FILENAMES", nowhere)
-        .env("RUST_LOG", "info")
-        .stderr(Stdio::piped())
-        .stdout(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let addr = loop {
-        assert!(Instant::now() < deadline, "no 'listening on' line");
-        let line = lines.next().expect("server exited early").unwrap();
-        if let Some(rest) = line.split("listening on http://").nth(1) {
-            break rest.trim().to_string();
-        }
-    };
+    // The loader's variables for where drivers are: pointed at nothing.
+    let (mut child, addr) = common::spawn_serve(
+        &[],
+        &[("VK_DRIVER_FILES", nowhere), ("VK_ICD_FILENAMES", nowhere)],
+    );
     let rt = tokio::runtime::Runtime::new().unwrap();
     let checked = rt.block_on(async {
         let c = reqwest::Client::new();

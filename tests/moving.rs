@@ -142,6 +142,16 @@ async fn put(
     (status, res.json().await.unwrap())
 }
 
+/// The session's next frame from [`camera`], applied to what it holds.
+async fn next_frame(c: &reqwest::Client, s: &Server, sid: &str, held: &mut Held) {
+    let f: FrameResponse = common::fetch(
+        c.post(s.url(&format!("/sessions/{sid}/frames")))
+            .json(&view_json(&camera())),
+    )
+    .await;
+    held.apply(&f);
+}
+
 async fn bounds_of(c: &reqwest::Client, s: &Server, id: u32) -> Value {
     let objects: Value = common::fetch(c.get(s.url("/scenes/yard/objects"))).await;
     objects[id as usize]["bounds"].clone()
@@ -182,12 +192,7 @@ async fn a_box_moved_into_the_open_is_in_every_methods_next_frame() {
         .await;
         let sid = created["session"].as_str().unwrap().to_string();
         let mut held = Held::default();
-        let f: FrameResponse = common::fetch(
-            c.post(s.url(&format!("/sessions/{sid}/frames")))
-                .json(&view_json(&camera())),
-        )
-        .await;
-        held.apply(&f);
+        next_frame(&c, &s, &sid, &mut held).await;
         // The panel hides nothing: it may move, so no method occludes with it.
         assert!(
             held.ids.contains(&CRATE),
@@ -211,12 +216,7 @@ async fn a_box_moved_into_the_open_is_in_every_methods_next_frame() {
     assert_eq!(bounds_of(&c, &s, BOX).await, moved["bounds"]);
 
     for (m, sid, held) in &mut sessions {
-        let f: FrameResponse = common::fetch(
-            c.post(s.url(&format!("/sessions/{sid}/frames")))
-                .json(&view_json(&camera())),
-        )
-        .await;
-        held.apply(&f);
+        next_frame(&c, &s, sid, held).await;
         assert!(
             held.ids.contains(&BOX),
             "{m}: the moved box is not in the next frame"
@@ -243,12 +243,7 @@ async fn a_box_moved_into_the_open_is_in_every_methods_next_frame() {
     assert_eq!(status, 200);
     let mut dropped = Vec::new();
     for (m, sid, held) in &mut sessions {
-        let f: FrameResponse = common::fetch(
-            c.post(s.url(&format!("/sessions/{sid}/frames")))
-                .json(&view_json(&camera())),
-        )
-        .await;
-        held.apply(&f);
+        next_frame(&c, &s, sid, held).await;
         if !held.ids.contains(&BOX) {
             dropped.push(m.clone());
         }

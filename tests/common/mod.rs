@@ -291,3 +291,34 @@ pub fn gpu_or_skip(test: &str) -> Option<Arc<pvsd::cull::gpu::Gpu>> {
         }
     }
 }
+
+/// Starts `pvsd serve --addr 127.0.0.1:0` with `args` more and `envs` set
+/// (logging at info); returns the child and the address its "listening on"
+/// line gives. The caller stops the child.
+pub fn spawn_serve(args: &[&str], envs: &[(&str, &str)]) -> (std::process::Child, String) {
+    use std::io::{BufRead, BufReader};
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pvsd"))
+        .env_remove("RUST_BACKTRACE")
+        .env("RUST_LOG", "info")
+        .envs(envs.iter().copied())
+        .args(["serve", "--addr", "127.0.0.1:0"])
+        .args(args)
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let addr = loop {
+        assert!(Instant::now() < deadline, "no 'listening on' line");
+        let line = lines.next().expect("server exited early").unwrap();
+        if let Some(rest) = line.split("listening on http://").nth(1) {
+            break rest.trim().to_string();
+        }
+    };
+    // Keep draining its log so it never blocks on a full pipe.
+    std::thread::spawn(move || lines.for_each(drop));
+    (child, addr)
+}
