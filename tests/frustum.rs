@@ -12,7 +12,7 @@ use glam::{DMat4, DVec3};
 use pvsd::cull::frustum::FrustumCulling;
 use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
 use pvsd::geom::Camera;
-use pvsd::scene::{Scene, SceneBuilder};
+use pvsd::scene::Scene;
 use rand::Rng;
 
 fn cull(methods: &SceneMethods, cam: Camera) -> Vec<u32> {
@@ -152,35 +152,9 @@ fn translated_scenes_give_the_same_answer() {
     }
 }
 
-/// Boxes from 1e-4 to 1e5 units in one scene, some degenerate.
-fn scales_scene() -> Arc<Scene> {
-    let mut b = SceneBuilder::new("scales");
-    let mut r = rng(3);
-    for i in 0..400 {
-        let size = 10f64.powf(r.random_range(-4.0..5.0));
-        let c = DVec3::new(
-            r.random_range(-2e4..2e4),
-            r.random_range(-2e4..2e4),
-            r.random_range(-2e4..2e4),
-        );
-        b.begin_object(format!("o{i}"), None);
-        let tri = match i % 10 {
-            0 => [c, c, c],                                           // a point
-            1 => [c, c + DVec3::X * size, c + DVec3::X * size * 2.0], // zero area, a segment
-            _ => [
-                c,
-                c + DVec3::new(size, 0.0, 0.0),
-                c + DVec3::new(0.0, size, size),
-            ],
-        };
-        b.add_triangles([tri], false);
-    }
-    Arc::new(b.finish())
-}
-
 #[test]
 fn tiny_huge_and_degenerate_objects() {
-    let m = prepared(scales_scene());
+    let m = prepared(common::scales_scene());
     let mut r = rng(5);
     for i in 0..200 {
         let mut cam = random_camera(&mut r, m.scene(), 0.0);

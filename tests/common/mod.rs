@@ -322,3 +322,29 @@ pub fn spawn_serve(args: &[&str], envs: &[(&str, &str)]) -> (std::process::Child
     std::thread::spawn(move || lines.for_each(drop));
     (child, addr)
 }
+
+/// Boxes from 1e-4 to 1e5 units in one scene, some degenerate.
+pub fn scales_scene() -> Arc<Scene> {
+    let mut b = pvsd::scene::SceneBuilder::new("scales");
+    let mut r = rng(3);
+    for i in 0..400 {
+        let size = 10f64.powf(r.random_range(-4.0..5.0));
+        let c = DVec3::new(
+            r.random_range(-2e4..2e4),
+            r.random_range(-2e4..2e4),
+            r.random_range(-2e4..2e4),
+        );
+        b.begin_object(format!("o{i}"), None);
+        let tri = match i % 10 {
+            0 => [c, c, c],                                           // a point
+            1 => [c, c + DVec3::X * size, c + DVec3::X * size * 2.0], // zero area, a segment
+            _ => [
+                c,
+                c + DVec3::new(size, 0.0, 0.0),
+                c + DVec3::new(0.0, size, size),
+            ],
+        };
+        b.add_triangles([tri], false);
+    }
+    Arc::new(b.finish())
+}
