@@ -1,7 +1,8 @@
 //! `pvsd gen crowd`: a square of ground with rows of walls across it and
-//! many small objects between them, half of them movable — the dynamic
-//! scene of Tai & Hsu §4 ("half of the objects are dynamic and the others
-//! are static"), at a size a server answers for many clients.
+//! many small objects on a regular grid between them (one per cell, placed
+//! at random within it), half of them movable — the dynamic scene of Tai &
+//! Hsu §4 ("half of the objects are dynamic and the others are static"),
+//! at a size a server answers for many clients.
 //!
 //! Walls and the ground are flagged `extras.occluder = true`; the movable
 //! objects `extras.movable = true` (each placed by its node's translation,
@@ -90,8 +91,11 @@ pub fn crowd(opts: &CrowdOptions) -> Document {
         }
     }
 
-    // Things: boxes of 0.4–1.2 m, meshes around their own origin, placed
-    // by translation (and a turn about y) like a glTF scene's props.
+    // Things: boxes of 0.4–1.8 m, meshes around their own origin, placed
+    // by translation (and a turn about y) like a glTF scene's props, one
+    // per cell of a regular grid over the ground.
+    let cols = (opts.objects as f64).sqrt().ceil().max(1.0) as u32;
+    let cell = side / cols as f32;
     for n in 0..opts.objects {
         let size = Vec3::new(
             rng.random_range(0.4..1.2),
@@ -107,10 +111,12 @@ pub fn crowd(opts: &CrowdOptions) -> Document {
         let mesh = doc.add_mesh(thing.build(false));
         let mut node = Node::named(format!("thing_{n:05}"));
         node.mesh = Some(mesh);
+        let (i, j) = ((n % cols) as f32, (n / cols) as f32);
+        let margin = (cell * 0.5).min(1.0);
         node.translation = [
-            rng.random_range(1.0..side - 1.0),
+            i * cell + rng.random_range(margin..(cell - margin).max(margin + 1e-3)),
             0.0,
-            rng.random_range(1.0..side - 1.0),
+            j * cell + rng.random_range(margin..(cell - margin).max(margin + 1e-3)),
         ];
         node.rotation =
             Quat::from_rotation_y(rng.random_range(0.0..std::f32::consts::TAU)).to_array();
