@@ -233,6 +233,87 @@ fn tiny_huge_and_degenerate_objects_at_extreme_cameras() {
     common::assert_seen(&seen, 0.25);
 }
 
+/// Geometry 1e5 units from the scene's origin seen from a metre away: a
+/// fence of posts (occluders) with small things behind its gaps. The
+/// vertices are moved to the eye on the device, in `f32`; done naively
+/// the eye alone is off by half an ulp of 1e5 (4 mm, half a pixel here).
+#[test]
+fn far_from_the_scene_origin_up_close() {
+    if gpu_or_skip("far_from_the_scene_origin_up_close").is_none() {
+        return;
+    }
+    let mut b = SceneBuilder::new("far");
+    let cuboid = |min: DVec3, max: DVec3| {
+        let mut m = pvsd::scene::generate::MeshBuilder::new();
+        m.cuboid(min.as_vec3(), max.as_vec3(), true);
+        m.build(false)
+            .triangles()
+            .map(|t| t.map(|v| v.as_dvec3()))
+            .collect::<Vec<_>>()
+    };
+    // The far end of the scene: a ground 2e5 long puts the origin 1e5 away.
+    b.begin_object("ground", Some(true));
+    b.add_triangles(
+        cuboid(DVec3::new(-1e5, -0.1, -5.0), DVec3::new(1e5, 0.0, 5.0)),
+        false,
+    );
+    let x0 = 99_990.0;
+    for i in 0..40 {
+        let x = x0 + i as f64 * 0.05;
+        b.begin_object(format!("post{i}"), Some(true));
+        b.add_triangles(
+            cuboid(DVec3::new(x, 0.0, 1.0), DVec3::new(x + 0.043, 2.0, 1.02)),
+            false,
+        );
+        b.begin_object(format!("thing{i}"), None);
+        let y = 0.2 + (i % 7) as f64 * 0.2;
+        b.add_triangles(
+            cuboid(
+                DVec3::new(x + 0.02, y, 1.5),
+                DVec3::new(x + 0.05, y + 0.03, 1.53),
+            ),
+            false,
+        );
+    }
+    let methods = SceneMethods::prepare(Arc::new(b.finish()));
+    let registry = Registry::standard();
+    let mut seen = Vec::new();
+    let mut culled = 0;
+    for i in 0..24 {
+        let camera = Camera {
+            eye: DVec3::new(x0 + 0.1 + 0.07 * i as f64, 1.0 + 0.01 * i as f64, 0.0),
+            forward: DVec3::new(0.03 * (i % 5) as f64 - 0.06, -0.05, 1.0),
+            up: DVec3::Y,
+            fov_y_deg: 60.0,
+            aspect: 1.6,
+            near: 0.01,
+            far: 1000.0,
+            viewport: [256, 160],
+        };
+        seen.push(common::check_camera(&methods, &registry, camera));
+        // The posts are too small against the scene to be proxies: the
+        // depth they make is drawn from the visible objects' triangles.
+        let truth = Truth::render(methods.scene(), &camera).unwrap().visible();
+        let view = View::new(camera, methods.scene()).unwrap();
+        let mut in_frustum = VisibleSet::new();
+        methods
+            .cull_once(&"frustum".parse().unwrap(), &view, &mut in_frustum)
+            .unwrap();
+        for spec in ["gpu:depth=geometry", "gpu:depth=both"] {
+            let mut out = VisibleSet::new();
+            methods
+                .cull_once(&spec.parse().unwrap(), &view, &mut out)
+                .unwrap();
+            for id in &truth {
+                assert!(out.contains(*id), "{spec} dropped {id} from {camera:?}");
+            }
+            culled += in_frustum.len() - out.len();
+        }
+    }
+    common::assert_seen(&seen, 1.0);
+    assert!(culled > 24, "the fence hid things ({culled})");
+}
+
 /// Options are read by name and range; aggressive ones say so.
 #[test]
 fn options_are_checked_and_aggressive_ones_are_not_conservative() {

@@ -171,7 +171,7 @@ impl<'a> Traversal<'a> {
             view,
             setup: Setup {
                 clip_from_view,
-                eye: view.eye().as_vec3(),
+                eye: view.eye(),
                 extent: camera.viewport,
                 mask: settings.mask,
             },

@@ -14,8 +14,10 @@
 //!
 //! Depth is reversed (1 at the near plane, 0 at the far plane, `f32`), so
 //! precision is even in relative depth at every distance. Every vertex is
-//! moved to the eye in `f32` before the rotation, so a scene placed at
-//! 1e7 keeps its precision. Pixels are sampled at their centres with one
+//! moved to the eye before the rotation, the eye given as two `f32`s, so a
+//! vertex near the eye keeps its precision however far both are from the
+//! scene's origin (and the scene's origin is near its centre, so a scene
+//! placed at 1e7 keeps it too). Pixels are sampled at their centres with one
 //! sample, as ground truth does.
 //!
 //! The loader is opened at run time (ash's `loaded` feature): a machine
@@ -26,7 +28,7 @@ use std::ops::Range;
 use std::sync::Mutex;
 
 use ash::vk;
-use glam::{Mat4, Vec3};
+use glam::{DVec3, Mat4, Vec3};
 
 use crate::scene::Scene;
 
@@ -50,8 +52,8 @@ pub struct Mask {
 pub struct Setup {
     /// Clip space from eye-relative, axis-aligned-to-the-scene coordinates.
     pub clip_from_view: Mat4,
-    /// The eye, scene-local, in `f32`: scene vertices are moved by it.
-    pub eye: Vec3,
+    /// The eye, scene-local: scene vertices are moved by it on the device.
+    pub eye: DVec3,
     /// Width and height in pixels.
     pub extent: [u32; 2],
     /// The importance mask, if any.
@@ -145,6 +147,8 @@ struct Push {
     eye: [f32; 4],
     box_min: [f32; 4],
     box_max: [f32; 4],
+    /// What `eye` lost to rounding.
+    eye_low: [f32; 4],
 }
 
 impl Push {
@@ -907,11 +911,13 @@ impl Vulkan {
         let d = &self.device;
         let cmd = r.cmd;
         let [w, h] = setup.extent;
+        let eye = setup.eye.as_vec3();
         let mut push = Push {
             clip_from_view: setup.clip_from_view.to_cols_array(),
-            eye: setup.eye.extend(0.0).to_array(),
+            eye: eye.extend(0.0).to_array(),
             box_min: [0.0; 4],
             box_max: [0.0; 4],
+            eye_low: (setup.eye - eye.as_dvec3()).as_vec3().extend(0.0).to_array(),
         };
         let stages = vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT;
         // SAFETY: recording into the buffer begun by `run`, with handles
@@ -972,6 +978,7 @@ impl Vulkan {
                 };
                 d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline);
                 push.eye = [0.0; 4];
+                push.eye_low = [0.0; 4];
                 for (i, b) in boxes.iter().enumerate() {
                     push.box_min = b[0].extend(0.0).to_array();
                     push.box_max = b[1].extend(0.0).to_array();

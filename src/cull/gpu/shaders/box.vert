@@ -8,6 +8,7 @@ layout(push_constant) uniform Push {
     vec4 eye;
     vec4 box_min;
     vec4 box_max;
+    vec4 eye_low;
 } push;
 
 void main() {
