@@ -18,6 +18,7 @@ use common::{gpu_or_skip, office_scene};
 use glam::{DVec3, Vec3};
 use pvsd::cull::gpu::Gpu;
 use pvsd::cull::gpu::grid::Grid;
+use pvsd::cull::gpu::movers::Movers;
 use pvsd::cull::gpu::traversal::{Settings, Traversal};
 use pvsd::cull::gpu::vulkan::{Mask, QuerySource, Setup};
 use pvsd::cull::{
@@ -85,7 +86,16 @@ fn query_masked(gpu: &Gpu, scene: &Scene, camera: Camera, mask: Option<Mask>) ->
         proxies: None,
         draw_visible: false,
     };
-    let setup = Traversal::new(&grid, scene, &view, settings, &mut out, &mut occludees).setup();
+    let setup = Traversal::new(
+        &grid,
+        &Movers::default(),
+        scene,
+        &view,
+        settings,
+        &mut out,
+        &mut occludees,
+    )
+    .setup();
     let b = scene.objects()[0].bounds;
     let eye = view.eye();
     let mut q = BoxQueries {

@@ -122,10 +122,11 @@ fn lost(method: &dyn Culler, how: impl std::fmt::Display) -> Ran {
 }
 
 /// Adds `scene`'s movable objects, at their current boxes, to the job's
-/// dynamic occludees after its avatars; returns how many avatars it had.
-pub fn add_movers(scene: &Scene, job: &mut CullJob) -> usize {
+/// dynamic occludees after its avatars, unless `method` culls them itself;
+/// returns how many avatars the job had.
+pub fn add_movers(scene: &Scene, method: &dyn Culler, job: &mut CullJob) -> usize {
     let avatars = job.occludees.boxes().len();
-    if !scene.motion().is_empty() {
+    if !scene.motion().is_empty() && !method.culls_movers() {
         let mut boxes = Vec::with_capacity(scene.motion().len());
         scene.motion().extend_boxes(&mut boxes);
         job.occludees.extend_boxes(boxes);
@@ -170,7 +171,7 @@ impl SceneMethods {
         method: &Arc<dyn Culler>,
         mut job: CullJob,
     ) -> Result<Culled, Unanswered> {
-        let avatars = add_movers(self.scene(), &mut job);
+        let avatars = add_movers(self.scene(), &**method, &mut job);
         let ran = self.cull_moved(method, job).await;
         self.settle_movers(ran, avatars)
     }
@@ -244,7 +245,7 @@ impl SceneMethods {
         mut job: CullJob,
     ) -> Result<Culled, Unanswered> {
         let start = Instant::now();
-        let avatars = add_movers(self.scene(), &mut job);
+        let avatars = add_movers(self.scene(), &**method, &mut job);
         let ran = run_waiting(method, job);
         let ran = self.settle(method, start, ran);
         self.settle_movers(ran, avatars)
@@ -284,7 +285,19 @@ impl SceneMethods {
             out: std::mem::take(&mut job.out),
             occludees: std::mem::take(&mut job.occludees),
         };
+        // A method that culls the movers itself left them out of the
+        // occludees: frustum culling takes them as occludees instead.
+        let own_movers = method.culls_movers();
+        let avatars = instead.occludees.boxes().len();
+        if own_movers {
+            add_movers(self.scene(), &**fallback, &mut instead);
+        }
         let result = fallback.cull(&mut instead);
+        let movers = if own_movers {
+            take_movers(self.scene(), &mut instead, avatars)
+        } else {
+            0
+        };
         job.out = instead.out;
         job.occludees = instead.occludees;
         let mut stats = match result {
@@ -296,6 +309,7 @@ impl SceneMethods {
                 });
             }
         };
+        stats.visible += movers;
         stats.method = method.name();
         stats.cull_us = start.elapsed().as_secs_f64() * 1e6;
         stats.fallback = Some(Fallback {
@@ -317,7 +331,7 @@ pub fn cull_here(
     method: &Arc<dyn Culler>,
     mut job: CullJob,
 ) -> Result<Culled, CullError> {
-    let avatars = add_movers(scene, &mut job);
+    let avatars = add_movers(scene, &**method, &mut job);
     let mut culled = run_waiting(method, job).map_err(|u| u.error)?;
     culled.stats.visible += take_movers(scene, &mut culled.job, avatars);
     Ok(culled)

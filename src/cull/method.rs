@@ -194,6 +194,14 @@ pub trait CullMethod: Send + Sync + 'static {
         Execution::Blocking
     }
 
+    /// Whether it culls the scene's movable objects itself (from
+    /// `Scene::motion`, adding those it finds visible to its answer); by
+    /// default it does not, and the dispatch hands them to it as dynamic
+    /// occludees after the avatars.
+    fn culls_movers(&self) -> bool {
+        false
+    }
+
     /// Adds the possibly visible objects of `view` to `out` (in any order,
     /// repeats allowed). `occludees` arrive answered by the frustum alone,
     /// which is conservative; a method with an occlusion test of its own
@@ -308,6 +316,8 @@ pub trait Culler: Send + Sync {
     fn name(&self) -> &'static str;
     /// Where its culls run ([`CullMethod::execution`]).
     fn execution(&self) -> Execution;
+    /// Whether it culls the scene's movable objects itself ([`CullMethod::culls_movers`]).
+    fn culls_movers(&self) -> bool;
     /// A fresh client cache for these options.
     fn new_cache(&self, options: &MethodOptions) -> Result<ClientCache, MethodError>;
     /// Culls the job's view into `job.out` (cleared first, sorted after)
@@ -337,6 +347,10 @@ impl<M: CullMethod> Culler for M {
 
     fn execution(&self) -> Execution {
         CullMethod::execution(self)
+    }
+
+    fn culls_movers(&self) -> bool {
+        CullMethod::culls_movers(self)
     }
 
     fn new_cache(&self, options: &MethodOptions) -> Result<ClientCache, MethodError> {

@@ -10,6 +10,7 @@
 //! next cull of every client sees it there.
 
 use std::sync::RwLock;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{DMat4, DVec3};
 
@@ -49,6 +50,9 @@ pub struct Motion {
     movers: Vec<Mover>,
     /// Current boxes, scene-local, one per mover.
     current: RwLock<Vec<Aabb>>,
+    /// How many moves there have been: a method that keeps its own
+    /// structure of the movers rebuilds it when this changes.
+    version: AtomicU64,
 }
 
 impl Clone for Motion {
@@ -56,6 +60,7 @@ impl Clone for Motion {
         Motion {
             movers: self.movers.clone(),
             current: RwLock::new(self.boxes()),
+            version: AtomicU64::new(self.version()),
         }
     }
 }
@@ -76,7 +81,13 @@ impl Motion {
         Motion {
             movers,
             current: RwLock::new(current),
+            version: AtomicU64::new(0),
         }
+    }
+
+    /// How many moves there have been.
+    pub fn version(&self) -> u64 {
+        self.version.load(Ordering::Acquire)
     }
 
     /// The movable objects' ids, ascending.
@@ -166,6 +177,7 @@ impl Motion {
             ));
         }
         self.current.write().unwrap_or_else(|p| p.into_inner())[i] = local;
+        self.version.fetch_add(1, Ordering::AcqRel);
         Ok(local)
     }
 }

@@ -38,6 +38,10 @@ pub struct Node {
     pub split: [f32; 3],
     /// The first voxel index of its range on each axis.
     lo: [u32; 3],
+    /// One past the last voxel index of its range on each axis.
+    hi: [u32; 3],
+    /// Its parent (the root's is itself).
+    parent: u32,
 }
 
 /// The grid and its hierarchy.
@@ -47,6 +51,9 @@ pub struct Grid {
     voxel: f32,
     dims: [u32; 3],
     nodes: Vec<Node>,
+    /// Per voxel (x fastest, then y, then z): the deepest node whose range
+    /// holds it — where a movable object in that voxel is kept.
+    owner: Vec<u32>,
 }
 
 impl Grid {
@@ -67,6 +74,7 @@ impl Grid {
                 voxel: 1.0,
                 dims: [1; 3],
                 nodes: Vec::new(),
+                owner: Vec::new(),
             };
         }
         let mid = sizes.len() / 2;
@@ -81,6 +89,7 @@ impl Grid {
             voxel,
             dims,
             nodes: Vec::new(),
+            owner: Vec::new(),
         };
         let mut items: Vec<([u32; 3], u32)> = scene
             .objects()
@@ -95,9 +104,40 @@ impl Grid {
             objects: Vec::new(),
             split: [f32::NAN; 3],
             lo: [0; 3],
+            hi: dims,
+            parent: 0,
         });
         grid.fill(0, [0; 3], dims, &mut items, scene);
+        // Nodes come parents first, so a later node that holds a voxel is
+        // deeper than any earlier one that does.
+        let mut owner = vec![0; (dims[0] * dims[1] * dims[2]) as usize];
+        for (n, node) in grid.nodes.iter().enumerate() {
+            for z in node.lo[2]..node.hi[2] {
+                for y in node.lo[1]..node.hi[1] {
+                    for x in node.lo[0]..node.hi[0] {
+                        owner[grid.voxel_index([x, y, z])] = n as u32;
+                    }
+                }
+            }
+        }
+        grid.owner = owner;
         grid
+    }
+
+    fn voxel_index(&self, v: [u32; 3]) -> usize {
+        ((v[2] * self.dims[1] + v[1]) * self.dims[0] + v[0]) as usize
+    }
+
+    /// The node that keeps a movable object with box `b`: the deepest one
+    /// whose range holds [`Grid::voxel_of`] `b` (§3.1's constant-time
+    /// placement). `None` for a grid without nodes.
+    pub fn owner_of(&self, b: &Aabb) -> Option<u32> {
+        self.owner.get(self.voxel_index(self.voxel_of(b))).copied()
+    }
+
+    /// The parent of node `n` (the root's is itself).
+    pub fn parent(&self, n: u32) -> u32 {
+        self.nodes[n as usize].parent
     }
 
     /// The voxel an object with box `b` belongs to: the one holding the
@@ -125,6 +165,7 @@ impl Grid {
         let node = &mut self.nodes[index];
         node.bounds = bounds;
         node.lo = lo;
+        node.hi = hi;
         if (0..3).all(|a| hi[a] - lo[a] <= 1) {
             node.objects = items.iter().map(|(_, id)| *id).collect();
             return;
@@ -167,6 +208,8 @@ impl Grid {
                 objects: Vec::new(),
                 split: [f32::NAN; 3],
                 lo: child_lo,
+                hi: child_hi,
+                parent: index as u32,
             });
             self.nodes[index].children.push(child as u32);
             self.fill(child, child_lo, child_hi, &mut items[start..end], scene);

@@ -5,6 +5,8 @@
 //!
 //! - [`grid`]: the scene as a regular grid organized as an octree-like
 //!   hierarchy of overlapping voxels, and eye-siding numbers (§3.1, §3.3);
+//! - [`movers`]: the scene's movable objects placed in the grid where they
+//!   are now (§3.1's dynamic objects), so the walk culls them with the rest;
 //! - [`traversal`]: one view's walk: 2-tier frustum culling with the
 //!   near-face test (§3.2), parallel units in front-to-back order and
 //!   multipass batched queries (§3.3), contribution and importance culling
@@ -21,15 +23,17 @@
 //! arrive together are one batch, and share every submission.
 
 pub mod grid;
+pub mod movers;
 pub mod traversal;
 pub mod vulkan;
 
 use std::ops::Range;
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use glam::Vec3;
 
 use grid::Grid;
+use movers::Movers;
 use traversal::{Settings, Traversal};
 use vulkan::{Mask, QuerySource, SceneGeometry, Vulkan};
 
@@ -202,6 +206,8 @@ pub struct GpuCulling {
     geometry: SceneGeometry,
     /// Where the occluder proxies are in `geometry`, in triangles.
     proxies: Range<u32>,
+    /// The movable objects placed in the grid (used by the device thread).
+    movers: Mutex<Movers>,
 }
 
 impl GpuCulling {
@@ -221,6 +227,7 @@ impl GpuCulling {
             gpu,
             geometry,
             proxies: start..start + proxies.len() as u32,
+            movers: Mutex::new(Movers::default()),
         })
     }
 
@@ -303,6 +310,11 @@ impl CullMethod for GpuCulling {
         Execution::Device(self.gpu.queue.clone())
     }
 
+    /// Movers are walked in the grid with everything else (§3.1).
+    fn culls_movers(&self) -> bool {
+        true
+    }
+
     fn cull(
         &self,
         view: &View,
@@ -326,11 +338,22 @@ impl CullMethod for GpuCulling {
         &self,
         batch: &mut [BatchItem<'_, GpuState>],
     ) -> Vec<Result<CullCounters, CullError>> {
+        let mut movers = self.movers.lock().unwrap_or_else(|p| p.into_inner());
+        movers.update(&self.grid, &self.scene);
+        let movers = &*movers;
         let mut walks: Vec<Traversal<'_>> = batch
             .iter_mut()
             .map(|b| {
                 let settings = b.state.settings(b.view, &self.proxies);
-                Traversal::new(&self.grid, &self.scene, b.view, settings, b.out, b.occludees)
+                Traversal::new(
+                    &self.grid,
+                    movers,
+                    &self.scene,
+                    b.view,
+                    settings,
+                    b.out,
+                    b.occludees,
+                )
             })
             .collect();
         let mut sources: Vec<&mut dyn QuerySource> = walks

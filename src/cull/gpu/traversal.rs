@@ -5,7 +5,10 @@
 //! the root's unit first; a visited unit's visible nodes give their
 //! children to four new units by eye-siding number (3, 2, 1, 0 visited in
 //! that order: front to back), and a visible voxel gives its objects to a
-//! unit of their own, visited next. The nodes of a unit are sent for
+//! unit of their own, visited next. A node's box includes the movable
+//! objects below it ([`Movers`]); an opened node gives the movers it keeps
+//! to that unit too. A mover found visible is in the answer but never
+//! drawn into depth: it may move, so it hides nothing. The nodes of a unit are sent for
 //! occlusion queries together, at most `batch` per pass (§3.3's multipass
 //! queries); before each pass the objects found visible so far are drawn
 //! into depth, nearest units first.
@@ -39,6 +42,7 @@ use std::ops::Range;
 use glam::{DMat4, DVec3, DVec4, Mat4, Vec3};
 
 use super::grid::Grid;
+use super::movers::Movers;
 use super::vulkan::{Mask, QuerySource, Setup};
 use crate::cull::{Occludees, View, VisibleSet};
 use crate::geom::Aabb;
@@ -83,6 +87,8 @@ pub struct Settings {
 enum Item {
     Node(u32),
     Object(u32),
+    /// A movable object, by its index in [`Movers`].
+    Mover(u32),
     Occludee(u32),
 }
 
@@ -90,6 +96,7 @@ enum Item {
 /// them as passes come back.
 pub struct Traversal<'a> {
     grid: &'a Grid,
+    movers: &'a Movers,
     scene: &'a Scene,
     view: &'a View,
     settings: Settings,
@@ -122,9 +129,11 @@ pub struct Traversal<'a> {
 }
 
 impl<'a> Traversal<'a> {
-    /// A walk of `grid` for `view`, answering into `out` and `occludees`.
+    /// A walk of `grid` (with `movers` placed in it) for `view`, answering
+    /// into `out` and `occludees`.
     pub fn new(
         grid: &'a Grid,
+        movers: &'a Movers,
         scene: &'a Scene,
         view: &'a View,
         settings: Settings,
@@ -167,6 +176,7 @@ impl<'a> Traversal<'a> {
         }
         Traversal {
             grid,
+            movers,
             scene,
             view,
             setup: Setup {
@@ -197,8 +207,9 @@ impl<'a> Traversal<'a> {
     /// The item's box, scene-local.
     fn bounds(&self, item: Item) -> Aabb {
         match item {
-            Item::Node(n) => self.grid.nodes()[n as usize].bounds,
+            Item::Node(n) => self.movers.bounds(self.grid, n),
             Item::Object(id) => self.scene.objects()[id as usize].bounds,
+            Item::Mover(i) => self.movers.bounds_of(i),
             Item::Occludee(i) => self.occludees.boxes()[i as usize],
         }
     }
@@ -275,6 +286,8 @@ impl<'a> Traversal<'a> {
                     self.undrawn.push(id);
                 }
             }
+            // A mover is never drawn: it may move, so it hides nothing.
+            Item::Mover(i) => self.out.push(self.movers.id(i)),
             Item::Occludee(_) => {}
         }
     }
@@ -289,10 +302,11 @@ impl<'a> Traversal<'a> {
         let open = std::mem::take(&mut self.open);
         for &(n, by_query) in &open {
             let node = &grid.nodes()[n as usize];
+            objects.extend(self.movers.kept(n).iter().map(|&i| Item::Mover(i)));
             if node.children.is_empty() {
-                // A voxel of one object has the object's box: its query
-                // answered for the object.
-                if by_query && node.objects.len() == 1 {
+                // A voxel of one object (and no mover) has the object's
+                // box: its query answered for the object.
+                if by_query && node.objects.len() == 1 && self.movers.kept(n).is_empty() {
                     self.visible(Item::Object(node.objects[0]), true);
                 } else {
                     objects.extend(node.objects.iter().map(|&id| Item::Object(id)));
@@ -359,11 +373,13 @@ impl QuerySource for Traversal<'_> {
                 continue;
             }
             if !self.occludees_done {
-                // Last, with every visible object drawn: the avatars.
+                // Last, with every visible object drawn: the avatars, and
+                // movers no node keeps.
                 self.occludees_done = true;
                 let shown: Vec<Item> = (0..self.occludees.boxes().len())
                     .filter(|&i| self.occludees.visible()[i])
                     .map(|i| Item::Occludee(i as u32))
+                    .chain(self.movers.loose().iter().map(|&i| Item::Mover(i)))
                     .collect();
                 for item in shown {
                     self.classify(item);
