@@ -11,6 +11,10 @@ use std::sync::Arc;
 
 use common::server::{Held, Server, view_json};
 use glam::{DVec3, Vec3};
+use pvsd::cull::{
+    CullCounters, CullError, CullMethod, MethodContext, MethodEntry, MethodError, MethodOptions,
+    Occludees, Registry, View, VisibleSet,
+};
 use pvsd::geom::Camera;
 use pvsd::scene::generate::MeshBuilder;
 use pvsd::scene::glb::{Document, Node};
@@ -351,4 +355,74 @@ async fn only_the_admin_token_moves_and_a_refused_move_moves_nothing() {
         assert!((min[axis].as_f64().unwrap() - lo).abs() < 1e-3, "{v}");
         assert!((max[axis].as_f64().unwrap() - hi).abs() < 1e-3, "{v}");
     }
+}
+
+/// A method that says it culls the movers itself, then fails: the frustum
+/// fallback must still answer the movers.
+struct FailsWithMovers;
+
+impl CullMethod for FailsWithMovers {
+    type State = ();
+    fn name(&self) -> &'static str {
+        "fails_with_movers"
+    }
+    fn new_state(&self, _: &MethodOptions) -> Result<(), MethodError> {
+        Ok(())
+    }
+    fn is_conservative(&self, _: &()) -> bool {
+        true
+    }
+    fn culls_movers(&self) -> bool {
+        true
+    }
+    fn cull(
+        &self,
+        _: &View,
+        _: &mut (),
+        _: &mut VisibleSet,
+        _: &mut Occludees,
+    ) -> Result<CullCounters, CullError> {
+        Err(CullError::Failed {
+            method: "fails_with_movers",
+            reason: "lost".into(),
+        })
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fallback_answers_the_movers_of_a_method_that_culls_them_itself() {
+    let registry = Registry::standard().with(MethodEntry {
+        name: "fails_with_movers",
+        purpose: "a test's method",
+        checked_with: &[],
+        build: |_| Ok(Arc::new(FailsWithMovers)),
+    });
+    let state = AppState::with_methods(
+        vec![yard()],
+        Limits::default(),
+        &registry,
+        &MethodContext::default(),
+    )
+    .unwrap()
+    .with_admin_token(Some(TOKEN.into()));
+    let s = Server::start(state).await;
+    let c = reqwest::Client::new();
+    let (status, _) = put(
+        &c,
+        &s,
+        "2",
+        Some(TOKEN),
+        json!({"translation": [18.0, 0.0, 12.0]}),
+    )
+    .await;
+    assert_eq!(status, 200);
+    let mut body = view_json(&camera());
+    body["method"] = json!("fails_with_movers");
+    let v: Value = common::fetch(c.post(s.url("/scenes/yard/visible")).json(&body)).await;
+    assert_eq!(v["stats"]["fallback"], "frustum", "{v}");
+    let visible = v["visible"].as_array().unwrap();
+    assert!(
+        visible.contains(&json!(BOX)) && visible.contains(&json!(PANEL)),
+        "{v}"
+    );
 }
