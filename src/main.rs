@@ -13,7 +13,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pvsd::cull::{AUTO_CHOICE, MethodSpec, Registry, SceneMethods, View, VisibleSet};
 use pvsd::eval::{EvalParams, WalkParams};
 use pvsd::geom::Camera;
-use pvsd::scene::generate::{CityOptions, CrowdOptions, OfficeOptions, city, crowd, office};
+use pvsd::scene::generate::{
+    CadOptions, CityOptions, CrowdOptions, OfficeOptions, cad, city, crowd, office,
+};
 use pvsd::scene::{Scene, load_path, load_slice};
 use pvsd::server::config::ServeConfig;
 use pvsd::server::{AppState, shutdown_signal};
@@ -150,6 +152,25 @@ enum GenCommand {
         #[arg(long, default_value_t = 100)]
         details: u32,
         /// Translate the whole scene by x,y,z.
+        #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, value_name = "X,Y,Z")]
+        offset: Option<DVec3>,
+        /// Output file (.glb).
+        #[arg(short, long, value_name = "FILE.glb")]
+        output: PathBuf,
+    },
+    /// A closed, finely tessellated body around many dense parts, with
+    /// windows (~160k triangles by default, like Bernardini et al.'s car).
+    Cad {
+        /// Seed of the parts' sizes and places.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Cells along each edge of each face of the body (24 × cells² triangles).
+        #[arg(long, default_value_t = 52)]
+        cells: u32,
+        /// Inner parts (~300 triangles each).
+        #[arg(long, default_value_t = 400)]
+        parts: u32,
+        /// Translate the whole model by x,y,z.
         #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true, value_name = "X,Y,Z")]
         offset: Option<DVec3>,
         /// Output file (.glb).
@@ -352,6 +373,26 @@ fn generate(cmd: GenCommand) -> anyhow::Result<()> {
                     rooms_x,
                     rooms_z,
                     details,
+                    offset: offset(o),
+                }),
+                output,
+            )
+        }
+        GenCommand::Cad {
+            seed,
+            cells,
+            parts,
+            offset: o,
+            output,
+        } => {
+            if cells < 2 {
+                bail!("--cells must be at least 2");
+            }
+            (
+                cad(&CadOptions {
+                    seed,
+                    cells,
+                    parts,
                     offset: offset(o),
                 }),
                 output,

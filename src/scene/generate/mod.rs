@@ -4,11 +4,13 @@
 //! stream, whose output is fixed across platforms and `rand` releases, so the
 //! same seed gives the same bytes everywhere.
 
+mod cad;
 mod city;
 mod crowd;
 mod mesh;
 mod office;
 
+pub use cad::{CadOptions, cad};
 pub use city::{CityOptions, city};
 pub use crowd::{CrowdOptions, crowd};
 pub use mesh::MeshBuilder;
