@@ -10,13 +10,15 @@ use anyhow::{Context, bail};
 use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
-use pvsd::cull::{AUTO_CHOICE, MethodSpec, Registry, SceneMethods, View, VisibleSet};
+use pvsd::cull::{
+    AUTO_CHOICE, MethodContext, MethodSpec, Registry, SceneMethods, View, VisibleSet,
+};
 use pvsd::eval::{EvalParams, WalkParams};
 use pvsd::geom::Camera;
 use pvsd::scene::generate::{
     CadOptions, CityOptions, CrowdOptions, OfficeOptions, cad, city, crowd, office,
 };
-use pvsd::scene::{Scene, load_path, load_slice};
+use pvsd::scene::{BakeCache, Scene, load_path, load_slice};
 use pvsd::server::config::ServeConfig;
 use pvsd::server::{AppState, shutdown_signal};
 use pvsd_proto::json::{Stats, VisibleResponse};
@@ -72,6 +74,10 @@ struct EvalArgs {
     /// The .gltf or .glb scene.
     #[arg(long, value_name = "FILE")]
     scene: PathBuf,
+    /// Where bakes (precomputed occluders) are kept between runs [default:
+    /// $XDG_CACHE_HOME/pvsd or ~/.cache/pvsd].
+    #[arg(long, value_name = "DIR")]
+    bake_dir: Option<PathBuf>,
     /// Methods with their options, comma-separated: `frustum,occlusion_tree:k=32`.
     #[arg(long, value_delimiter = ',', required = true, value_name = "M1,M2,...")]
     methods: Vec<String>,
@@ -112,6 +118,10 @@ struct ServeArgs {
     /// Address to listen on [default: 127.0.0.1:8080].
     #[arg(long, value_name = "HOST:PORT")]
     addr: Option<SocketAddr>,
+    /// Where bakes (precomputed occluders) are kept between runs [default:
+    /// the config's bake_dir, else $XDG_CACHE_HOME/pvsd or ~/.cache/pvsd].
+    #[arg(long, value_name = "DIR")]
+    bake_dir: Option<PathBuf>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -308,13 +318,18 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
             .map(|p| load_scene(p))
             .collect::<anyhow::Result<Vec<_>>>()?
     };
-    let state = AppState::with_methods(
-        scenes,
-        config.limits(),
-        &Registry::standard(),
-        &config.method_context(),
-    )?
-    .with_admin_token(config.admin_token.clone());
+    let mut context = config.method_context();
+    if let Some(dir) = &args.bake_dir {
+        context.bake_dir = Some(dir.clone());
+    }
+    let started = std::time::Instant::now();
+    let state = AppState::with_methods(scenes, config.limits(), &Registry::standard(), &context)?
+        .with_admin_token(config.admin_token.clone());
+    tracing::info!(
+        ms = started.elapsed().as_millis() as u64,
+        bake_dir = %context.bake_dir.as_deref().map_or("none".into(), |d| d.display().to_string()),
+        "scenes prepared"
+    );
     let addr = args
         .addr
         .or(config.addr)
@@ -515,7 +530,12 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         .iter()
         .map(|m| known_spec(m))
         .collect::<anyhow::Result<Vec<MethodSpec>>>()?;
-    let methods = SceneMethods::prepare(load_scene(&args.scene)?);
+    let context = MethodContext {
+        bake_dir: args.bake_dir.clone().or_else(BakeCache::default_dir),
+        ..MethodContext::of_this_machine()
+    };
+    let methods =
+        SceneMethods::prepare_with(load_scene(&args.scene)?, &Registry::standard(), &context);
     let params = EvalParams {
         walk: WalkParams {
             kind: args.walk,

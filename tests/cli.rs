@@ -199,7 +199,7 @@ fn serve_refuses_a_broken_scene_naming_it() {
 
 #[test]
 fn serve_answers_and_stops_on_sigterm() {
-    let (mut child, addr) = common::spawn_serve(&[], &[]);
+    let (mut child, addr, _) = common::spawn_serve(&[], &[]);
     let rt = tokio::runtime::Runtime::new().unwrap();
     rt.block_on(async {
         let c = reqwest::Client::new();
@@ -226,4 +226,57 @@ fn serve_answers_and_stops_on_sigterm() {
         assert!(Instant::now() < deadline, "did not stop on SIGTERM");
         std::thread::sleep(Duration::from_millis(50));
     }
+}
+
+/// A second server start reads the occluders the first one baked; a
+/// damaged bake is rebuilt, with the reason logged.
+#[test]
+fn serve_bakes_occluders_once_and_rebuilds_a_damaged_bake() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("office.glb");
+    let (ok, _, err) = run(&[
+        "gen",
+        "office",
+        "--seed",
+        "3",
+        "-o",
+        scene.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let bakes = dir.path().join("bakes");
+    let start = || {
+        let (mut child, _, log) = common::spawn_serve(
+            &[
+                "--scene",
+                scene.to_str().unwrap(),
+                "--bake-dir",
+                bakes.to_str().unwrap(),
+            ],
+            &[],
+        );
+        let _ = child.kill();
+        let _ = child.wait();
+        log.join("\n")
+    };
+    let first = start();
+    assert!(
+        first.contains("baked") && first.contains("none yet"),
+        "{first}"
+    );
+    let second = start();
+    assert!(second.contains("loaded a bake"), "{second}");
+    // One flipped byte: refused by its checksum and baked again.
+    let file = std::fs::read_dir(&bakes)
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    let mut bytes = std::fs::read(&file).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x40;
+    std::fs::write(&file, bytes).unwrap();
+    let third = start();
+    assert!(third.contains("checksum"), "{third}");
+    assert!(start().contains("loaded a bake"));
 }

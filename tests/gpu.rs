@@ -554,7 +554,7 @@ async fn the_device_worker_serves_200_concurrent_requests() {
 fn without_a_vulkan_driver_gpu_is_unsupported_and_the_server_serves() {
     let nowhere = "/nonexistent/pvsd-no-driver.json";
     // The loader's variables for where drivers are: pointed at nothing.
-    let (mut child, addr) = common::spawn_serve(
+    let (mut child, addr, _) = common::spawn_serve(
         &[],
         &[("VK_DRIVER_FILES", nowhere), ("VK_ICD_FILENAMES", nowhere)],
     );

@@ -23,7 +23,7 @@ use super::gpu::Gpu;
 use super::occluder::Occluders;
 use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodSpec};
 use super::{CullError, CullJob, View, VisibleSet};
-use crate::scene::Scene;
+use crate::scene::{BakeCache, Scene};
 use crate::spatial::{KdTree, KdTreeParams};
 
 /// What preparing methods may use beyond the scene itself.
@@ -105,11 +105,20 @@ impl<'a> Preparation<'a> {
             .clone()
     }
 
-    /// The scene's large planar occluders, found on first use; `None` when
-    /// it has none large enough to be worth testing against.
+    /// The scene's large planar occluders, found on first use (read from
+    /// the bake cache when the context has one and an earlier run baked
+    /// them); `None` when it has none large enough to be worth testing
+    /// against.
     pub fn occluders(&self) -> Option<Arc<Occluders>> {
         self.occluders
-            .get_or_init(|| Occluders::find(self.scene, &self.kd_tree()).map(Arc::new))
+            .get_or_init(|| {
+                let tree = self.kd_tree();
+                match &self.context.bake_dir {
+                    Some(dir) => Occluders::find_baked(self.scene, &tree, &BakeCache::new(dir)),
+                    None => Occluders::find(self.scene, &tree),
+                }
+                .map(Arc::new)
+            })
             .clone()
     }
 

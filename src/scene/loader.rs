@@ -69,7 +69,14 @@ pub fn load_slice(
         .ok_or_else(|| fail("the file has no scene".into()))?;
     let mut builder = SceneBuilder::new(id);
     walk(&document, scene, &buffers, &mut builder).map_err(fail)?;
-    Ok(builder.finish())
+    let mut hash = xxhash_rust::xxh3::Xxh3::new();
+    hash.update(bytes);
+    for b in &buffers {
+        hash.update(b);
+    }
+    let mut scene = builder.finish();
+    scene.source_hash = Some(hash.digest128());
+    Ok(scene)
 }
 
 /// The `gltf` crate subtracts the header size from a GLB's declared length

@@ -3,12 +3,14 @@
 //! A scene is a flat list of objects (one per mesh-bearing node instance)
 //! with stable ids, boxes and triangles; see [`Scene`].
 
+pub mod bake;
 pub mod generate;
 pub mod glb;
 mod loader;
 mod model;
 pub mod motion;
 
+pub use bake::{BakeCache, Baked};
 pub use loader::{LoadError, load_path, load_slice};
 pub use model::{Object, Scene, SceneBuilder};
 pub use motion::{Motion, MoveError};

@@ -77,12 +77,21 @@ pub struct Scene {
     pub(crate) triangles: Vec<[Vec3; 3]>,
     pub(crate) bounds: Aabb,
     pub(crate) motion: Motion,
+    /// A hash of the file it was loaded from (and its buffers); `None` for
+    /// a scene built in memory. Bakes of the scene are named by it.
+    pub(crate) source_hash: Option<u128>,
 }
 
 impl Scene {
     /// Every object, indexed by id.
     pub fn objects(&self) -> &[Object] {
         &self.objects
+    }
+
+    /// A hash of the file the scene was loaded from, with its buffers
+    /// (xxh3, 128 bits); `None` for a scene built in memory.
+    pub fn source_hash(&self) -> Option<u128> {
+        self.source_hash
     }
 
     /// Where the movable objects are now.
@@ -271,6 +280,7 @@ impl SceneBuilder {
             triangles,
             bounds,
             motion: Motion::new(movers, origin),
+            source_hash: None,
         }
     }
 }

@@ -22,6 +22,7 @@ use serde::Deserialize;
 
 use super::{Limits, SessionLimits};
 use crate::cull::{MethodContext, Registry};
+use crate::scene::BakeCache;
 
 /// The file's contents.
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
@@ -110,10 +111,12 @@ impl ServeConfig {
         Ok(cfg)
     }
 
-    /// What the scenes' methods are prepared with.
+    /// The context the server prepares its scenes in: this machine's,
+    /// with the config's bake folder (else the user's cache folder,
+    /// [`BakeCache::default_dir`]) and disabled methods.
     pub fn method_context(&self) -> MethodContext {
         MethodContext {
-            bake_dir: self.bake_dir.clone(),
+            bake_dir: self.bake_dir.clone().or_else(BakeCache::default_dir),
             disabled: self.disabled_methods.clone(),
             ..MethodContext::of_this_machine()
         }

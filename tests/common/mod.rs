@@ -293,15 +293,21 @@ pub fn gpu_or_skip(test: &str) -> Option<Arc<pvsd::cull::gpu::Gpu>> {
 }
 
 /// Starts `pvsd serve --addr 127.0.0.1:0` with `args` more and `envs` set
-/// (logging at info); returns the child and the address its "listening on"
-/// line gives. The caller stops the child.
-pub fn spawn_serve(args: &[&str], envs: &[(&str, &str)]) -> (std::process::Child, String) {
+/// (logging at info; the user's cache folder moved to a scratch one unless
+/// `envs` says otherwise); returns the child, the address its "listening
+/// on" line gives, and the log lines before it. The caller stops the child.
+pub fn spawn_serve(
+    args: &[&str],
+    envs: &[(&str, &str)],
+) -> (std::process::Child, String, Vec<String>) {
     use std::io::{BufRead, BufReader};
     use std::process::{Command, Stdio};
     use std::time::{Duration, Instant};
+    let scratch = std::env::temp_dir().join(format!("pvsd-test-cache-{}", std::process::id()));
     let mut child = Command::new(env!("CARGO_BIN_EXE_pvsd"))
         .env_remove("RUST_BACKTRACE")
         .env("RUST_LOG", "info")
+        .env("XDG_CACHE_HOME", &scratch)
         .envs(envs.iter().copied())
         .args(["serve", "--addr", "127.0.0.1:0"])
         .args(args)
@@ -311,16 +317,18 @@ pub fn spawn_serve(args: &[&str], envs: &[(&str, &str)]) -> (std::process::Child
         .unwrap();
     let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
     let deadline = Instant::now() + Duration::from_secs(60);
+    let mut before = Vec::new();
     let addr = loop {
         assert!(Instant::now() < deadline, "no 'listening on' line");
         let line = lines.next().expect("server exited early").unwrap();
         if let Some(rest) = line.split("listening on http://").nth(1) {
             break rest.trim().to_string();
         }
+        before.push(line);
     };
     // Keep draining its log so it never blocks on a full pipe.
     std::thread::spawn(move || lines.for_each(drop));
-    (child, addr)
+    (child, addr, before)
 }
 
 /// Boxes from 1e-4 to 1e5 units in one scene, some degenerate.

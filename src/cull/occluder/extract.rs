@@ -5,7 +5,7 @@ use rustc_hash::FxHashMap;
 use glam::{DVec3, Vec3};
 
 use super::Occluder;
-use crate::geom::{Aabb, ConvexPolygon};
+use crate::geom::ConvexPolygon;
 use crate::scene::Scene;
 
 /// Occluder polygons of a scene (module docs of [`super`]).
@@ -40,19 +40,7 @@ pub(super) fn occluder_polygons(scene: &Scene) -> Vec<Occluder> {
             if area < min_area {
                 continue;
             }
-            let bounds = Aabb::from_points(polygon.vertices.iter().map(|v| v.as_vec3()));
-            // Grow by the f32 rounding of the corners so the box holds the polygon.
-            let slack = Vec3::splat(
-                bounds.max.abs().max(bounds.min.abs()).max_element() * f32::EPSILON * 2.0,
-            );
-            let bounds = Aabb::new(bounds.min - slack, bounds.max + slack);
-            out.push(Occluder {
-                centroid: polygon.centroid(),
-                polygon,
-                plane,
-                area,
-                bounds,
-            });
+            out.push(Occluder::new(polygon, plane, area));
         }
     }
     out
@@ -64,6 +52,11 @@ type Key = [u32; 3];
 fn key(v: Vec3) -> Key {
     [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]
 }
+
+/// What a bake of the occluders depends on beyond the scene file: change
+/// it whenever extraction changes (a rule, a constant below), so that old
+/// bakes are rebuilt.
+pub(super) const BAKE_PARAMS: &str = "merge-v1 normal=1e-4 offset=1e-3 planarity=2ulps";
 
 /// Triangles whose unit normals round to the same multiple of this are
 /// tried together for merging. Grouping only proposes candidates: every

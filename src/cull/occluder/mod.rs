@@ -18,15 +18,15 @@
 
 mod extract;
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 
 use super::occlusion::tolerance::EDGE_ON_TOLERANCE;
 use crate::geom::{Aabb, ConvexPolygon, Plane};
-use crate::scene::Scene;
+use crate::scene::{BakeCache, Scene};
 use crate::spatial::{KdTree, NodeKind};
 
 /// One occluder polygon, scene-local.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Occluder {
     /// The polygon (convex, no collinear vertices).
     pub polygon: ConvexPolygon,
@@ -40,6 +40,73 @@ pub struct Occluder {
     pub bounds: Aabb,
 }
 
+impl Occluder {
+    /// An occluder from its polygon, plane and area.
+    fn new(polygon: ConvexPolygon, plane: Plane, area: f64) -> Occluder {
+        let bounds = Aabb::from_points(polygon.vertices.iter().map(|v| v.as_vec3()));
+        // Grow by the f32 rounding of the corners so the box holds the polygon.
+        let slack =
+            Vec3::splat(bounds.max.abs().max(bounds.min.abs()).max_element() * f32::EPSILON * 2.0);
+        Occluder {
+            centroid: polygon.centroid(),
+            bounds: Aabb::new(bounds.min - slack, bounds.max + slack),
+            polygon,
+            plane,
+            area,
+        }
+    }
+}
+
+/// The bake of a scene's occluder polygons: their corners, `f64`, in order
+/// (`u32` count of polygons; per polygon a `u32` count of corners and
+/// three `f64` each, little-endian). Plane, area and box are derived again
+/// the way extraction derives them.
+fn encode(list: &Vec<Occluder>) -> Vec<u8> {
+    let mut out = Vec::new();
+    out.extend_from_slice(&(list.len() as u32).to_le_bytes());
+    for o in list {
+        out.extend_from_slice(&(o.polygon.vertices.len() as u32).to_le_bytes());
+        for v in &o.polygon.vertices {
+            for c in v.to_array() {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+    }
+    out
+}
+
+fn decode(bytes: &[u8]) -> Result<Vec<Occluder>, String> {
+    let mut at = 0usize;
+    let u32_at = |at: &mut usize| -> Result<u32, String> {
+        let b = bytes.get(*at..*at + 4).ok_or("occluders: truncated")?;
+        *at += 4;
+        Ok(u32::from_le_bytes(b.try_into().expect("4 bytes")))
+    };
+    let count = u32_at(&mut at)?;
+    let mut list = Vec::with_capacity(count.min(1 << 20) as usize);
+    for _ in 0..count {
+        let corners = u32_at(&mut at)? as usize;
+        let need = corners * 24;
+        let raw = bytes.get(at..at + need).ok_or("occluders: truncated")?;
+        at += need;
+        let f = |i: usize| f64::from_le_bytes(raw[i * 8..i * 8 + 8].try_into().expect("8 bytes"));
+        let polygon = ConvexPolygon::new(
+            (0..corners)
+                .map(|k| DVec3::new(f(3 * k), f(3 * k + 1), f(3 * k + 2)))
+                .collect(),
+        );
+        let plane = polygon
+            .plane()
+            .ok_or("occluders: a polygon without a plane")?;
+        let area = polygon.area();
+        list.push(Occluder::new(polygon, plane, area));
+    }
+    if at != bytes.len() {
+        return Err("occluders: bytes left over".into());
+    }
+    Ok(list)
+}
+
 /// A scene's occluders and, per kd leaf, the occluders that reach into it.
 #[derive(Clone, Debug)]
 pub struct Occluders {
@@ -51,7 +118,25 @@ pub struct Occluders {
 impl Occluders {
     /// Finds a scene's occluders (see the module docs); `None` when it has none.
     pub fn find(scene: &Scene, tree: &KdTree) -> Option<Occluders> {
-        let list = extract::occluder_polygons(scene);
+        Occluders::with_list(extract::occluder_polygons(scene), tree)
+    }
+
+    /// [`Occluders::find`], the polygons read from `cache` when an earlier
+    /// run baked them for this scene file (extraction is most of a large
+    /// scene's preparation), and baked there when not.
+    pub fn find_baked(scene: &Scene, tree: &KdTree, cache: &BakeCache) -> Option<Occluders> {
+        let (list, _) = cache.load_or_build(
+            scene,
+            "occluders",
+            extract::BAKE_PARAMS,
+            || extract::occluder_polygons(scene),
+            encode,
+            decode,
+        );
+        Occluders::with_list(list, tree)
+    }
+
+    fn with_list(list: Vec<Occluder>, tree: &KdTree) -> Option<Occluders> {
         if list.is_empty() {
             return None;
         }
@@ -106,5 +191,40 @@ impl Occluders {
         scored.sort_unstable_by(better);
         out.clear();
         out.extend(scored.into_iter().map(|s| s.1));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::generate::{OfficeOptions, office};
+    use crate::scene::{Baked, load_slice};
+
+    /// A baked occluder list is the extracted one, bit for bit: its corners
+    /// travel exactly and every derived field is derived the same way.
+    #[test]
+    fn baked_occluders_are_the_extracted_ones() {
+        let doc = office(&OfficeOptions::default());
+        let path = std::path::Path::new("office.glb");
+        let scene = load_slice("office", &doc.to_glb(), None, path).unwrap();
+        let tree = KdTree::build(&scene, Default::default());
+        let found = Occluders::find(&scene, &tree).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let cache = BakeCache::new(dir.path());
+        let built = Occluders::find_baked(&scene, &tree, &cache).unwrap();
+        let loaded = Occluders::find_baked(&scene, &tree, &cache).unwrap();
+        assert_eq!(found.all(), built.all());
+        assert_eq!(found.all(), loaded.all());
+        assert_eq!(found.by_leaf, loaded.by_leaf);
+        let (_, how) = cache.load_or_build(
+            &scene,
+            "occluders",
+            extract::BAKE_PARAMS,
+            Vec::new,
+            encode,
+            decode,
+        );
+        assert_eq!(how, Baked::Loaded);
+        assert!(decode(&encode(found.all().to_vec().as_ref())[..7]).is_err());
     }
 }
