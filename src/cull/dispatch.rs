@@ -127,9 +127,9 @@ fn lost(method: &dyn Culler, how: impl std::fmt::Display) -> Ran {
 pub fn add_movers(scene: &Scene, method: &dyn Culler, job: &mut CullJob) -> usize {
     let avatars = job.occludees.boxes().len();
     if !scene.motion().is_empty() && !method.culls_movers() {
-        let mut boxes = Vec::with_capacity(scene.motion().len());
-        scene.motion().extend_boxes(&mut boxes);
-        job.occludees.extend_boxes(boxes);
+        scene
+            .motion()
+            .with_boxes(|boxes| job.occludees.extend_boxes(boxes.iter().copied()));
     }
     avatars
 }
@@ -145,10 +145,9 @@ pub fn take_movers(scene: &Scene, job: &mut CullJob, avatars: usize) -> u64 {
     let mut added = 0;
     // With pixel bounds, a mover's is the whole view (no tighter one known).
     let [w, h] = job.view.camera().viewport;
-    let areas = job.out.areas().is_some();
-    let shown: Vec<bool> = job.occludees.visible()[avatars..].to_vec();
-    for (id, shown) in motion.ids().zip(shown) {
-        if shown && !job.out.contains(id) {
+    let areas = job.out.has_areas();
+    for (k, id) in motion.ids().enumerate() {
+        if job.occludees.visible()[avatars + k] && !job.out.contains(id) {
             if areas {
                 job.out.push_with_area(id, w as f64 * h as f64);
             } else {

@@ -117,6 +117,11 @@ impl VisibleSet {
             .retain(|(id, _)| members[*id as usize >> 6] & (1 << (id & 63)) != 0);
     }
 
+    /// Whether ids were pushed with pixel bounds ([`VisibleSet::push_with_area`]).
+    pub fn has_areas(&self) -> bool {
+        !self.areas.is_empty()
+    }
+
     /// Sorts the ids ascending.
     pub fn finish(&mut self) {
         // Reading the bitset costs a word per 64 ids of range; sorting,

@@ -113,14 +113,9 @@ impl Motion {
             .clone()
     }
 
-    /// Appends the current boxes to `out`.
-    pub fn extend_boxes(&self, out: &mut Vec<Aabb>) {
-        out.extend(
-            self.current
-                .read()
-                .unwrap_or_else(|p| p.into_inner())
-                .iter(),
-        );
+    /// Calls `f` with the current boxes (no copy; moves wait meanwhile).
+    pub fn with_boxes<R>(&self, f: impl FnOnce(&[Aabb]) -> R) -> R {
+        f(&self.current.read().unwrap_or_else(|p| p.into_inner()))
     }
 
     /// The current box of movable object `id`, if it is one.
