@@ -107,7 +107,8 @@ fn query_masked(gpu: &Gpu, scene: &Scene, camera: Camera, mask: Option<Mask>) ->
         counts: Vec::new(),
         sent: false,
     };
-    let geometry = gpu.vulkan().upload(scene, &[]).unwrap();
+    let none = vec![[pvsd::cull::gpu::vulkan::NO_NEIGHBOUR; 3]; scene.triangles().len()];
+    let geometry = gpu.vulkan().upload(scene, &[], &none).unwrap();
     gpu.vulkan().run(&geometry, &mut [&mut q]).unwrap();
     gpu.vulkan().release(&geometry);
     q.counts[0]

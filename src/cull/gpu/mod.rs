@@ -22,6 +22,7 @@
 //! runs on the device's own thread ([`Execution::Device`]): views that
 //! arrive together are one batch, and share every submission.
 
+mod adjacency;
 pub mod grid;
 pub mod movers;
 pub mod traversal;
@@ -121,34 +122,24 @@ pub const ENTRY: MethodEntry = MethodEntry {
 
 fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
     let gpu = p.context().gpu.clone()?;
-    let proxies = p.occluders().map(|o| proxy_triangles(&o)).unwrap_or_default();
+    let proxies = p.occluders().map(|o| proxy_fans(&o)).unwrap_or_default();
     Ok(Arc::new(GpuCulling::new(p.scene().clone(), gpu, &proxies)?))
 }
 
-/// The scene's large planar occluders as triangles (fans of convex
-/// polygons): each is a union of one object's own triangles, so drawing
-/// them first puts only real surfaces into the depth buffer. Only the
-/// polygon's own edges are eroded, not the fan's inner ones, so a polygon
-/// has no cracks.
-fn proxy_triangles(occluders: &Occluders) -> Vec<([Vec3; 3], u8)> {
-    let mut out = Vec::new();
-    for o in occluders.all() {
-        let v = &o.polygon.vertices;
-        let n = v.len();
-        for i in 1..n.saturating_sub(1) {
-            // Corners 0, i, i + 1: the edge opposite corner 0 (bit 0) is
-            // the polygon's; the others are when the fan starts or ends.
-            let mut erode = 1;
-            if i + 1 == n - 1 {
-                erode |= 2;
-            }
-            if i == 1 {
-                erode |= 4;
-            }
-            out.push(([v[0].as_vec3(), v[i].as_vec3(), v[i + 1].as_vec3()], erode));
-        }
-    }
-    out
+/// The scene's large planar occluders as fans of triangles, one fan a
+/// polygon: each is a union of one object's own triangles, so drawing them
+/// first puts only real surfaces into the depth buffer.
+fn proxy_fans(occluders: &Occluders) -> Vec<Vec<[Vec3; 3]>> {
+    occluders
+        .all()
+        .iter()
+        .map(|o| {
+            let v = &o.polygon.vertices;
+            (1..v.len().saturating_sub(1))
+                .map(|i| [v[0].as_vec3(), v[i].as_vec3(), v[i + 1].as_vec3()])
+                .collect()
+        })
+        .collect()
 }
 
 /// The machine's Vulkan device and the thread that drives it.
@@ -211,16 +202,28 @@ pub struct GpuCulling {
 }
 
 impl GpuCulling {
-    /// The method for `scene` on `gpu`, with `proxies` (triangles lying on
-    /// the scene's opaque surfaces) drawn first into every view's depth;
-    /// everything is uploaded now.
+    /// The method for `scene` on `gpu`, with `proxies` (polygons as fans
+    /// of triangles lying on the scene's opaque surfaces) drawn first into
+    /// every view's depth; everything is uploaded now.
     pub fn new(
         scene: Arc<Scene>,
         gpu: Arc<Gpu>,
-        proxies: &[([Vec3; 3], u8)],
+        proxies: &[Vec<[Vec3; 3]>],
     ) -> Result<GpuCulling, String> {
-        let geometry = gpu.vulkan.upload(&scene, proxies)?;
         let start = scene.triangles().len() as u32;
+        let mut triangles = scene.triangles().to_vec();
+        // Edges are shared within an object's opaque triangles, or within
+        // one proxy polygon.
+        let mut groups: Vec<Vec<Range<u32>>> =
+            scene.objects().iter().map(|o| o.opaque_ranges()).collect();
+        for fan in proxies {
+            let at = triangles.len() as u32;
+            triangles.extend_from_slice(fan);
+            groups.push(std::iter::once(at..triangles.len() as u32).collect());
+        }
+        let apices = adjacency::neighbours(&triangles, &groups);
+        let proxies = &triangles[start as usize..];
+        let geometry = gpu.vulkan.upload(&scene, proxies, &apices)?;
         Ok(GpuCulling {
             grid: Grid::build(&scene),
             scene,

@@ -23,10 +23,13 @@
 //! Why a query cannot drop a visible object. The depth buffer holds only
 //! real opaque surfaces: triangles of objects found visible and occluder
 //! polygons merged from one object's own triangles (see-through triangles
-//! are never drawn), each pulled in from its outer edges by 1/16 pixel
-//! (`shaders/erode.frag`: the rasterizer snaps vertices to a subpixel grid,
-//! and without it a surface could cover a pixel centre that ground truth,
-//! in `f64`, leaves uncovered). So at every pixel the depth buffer lies at
+//! are never drawn), each pulled in by 1/16 pixel at every edge where the
+//! surface ends or folds away as seen from the eye (`shaders/scene.vert`
+//! decides, `shaders/erode.frag` pulls in: the rasterizer snaps vertices to
+//! a subpixel grid, and without it a surface could cover a pixel centre
+//! that ground truth, in `f64`, leaves uncovered). An edge the surface runs
+//! on across is left whole: truth's inclusive edges cover its pixel
+//! centres from one side or the other, and so does the rasterizer. So at every pixel the depth buffer lies at
 //! or behind the nearest surface ground truth sees there. Where truth sees an object, the ray
 //! through that pixel's centre enters the object's box no later than it
 //! meets the object, so a query of the box passes the depth test there

@@ -73,13 +73,21 @@ pub trait QuerySource {
     fn answer(&mut self, counts: &[u64]);
 }
 
-/// A scene's triangles on the device, uploaded once.
+/// A scene's triangles on the device, uploaded once, with the neighbours
+/// of their edges (the depth pass erodes only outlines, `shaders/scene.vert`).
 pub struct SceneGeometry {
     buffer: vk::Buffer,
     memory: vk::DeviceMemory,
+    apices: vk::Buffer,
+    apices_memory: vk::DeviceMemory,
+    pool: vk::DescriptorPool,
+    set: vk::DescriptorSet,
     /// Bytes on the device.
     pub bytes: u64,
 }
+
+/// An edge without a neighbour in [`Vulkan::upload`]'s `apices`.
+pub const NO_NEIGHBOUR: u32 = u32::MAX;
 
 /// What [`Vulkan::run`] spent, for the README's "where the time goes".
 #[derive(Clone, Copy, Debug, Default)]
@@ -126,6 +134,8 @@ pub struct Vulkan {
     depth_format: vk::Format,
     pass_clear: vk::RenderPass,
     pass_load: vk::RenderPass,
+    /// The depth pass reads the scene's vertices and edge neighbours.
+    set_layout: vk::DescriptorSetLayout,
     layout: vk::PipelineLayout,
     modules: Vec<vk::ShaderModule>,
     depth_pipeline: vk::Pipeline,
@@ -165,6 +175,13 @@ impl Push {
 
 fn spirv(bytes: &[u8]) -> Vec<u32> {
     ash::util::read_spv(&mut Cursor::new(bytes)).expect("build.rs wrote whole SPIR-V words")
+}
+
+/// The bytes of a slice of plain numbers.
+fn bytes_of<T: Copy>(data: &[T]) -> &[u8] {
+    // SAFETY: `T` is a plain array of `f32` or `u32` here: no padding, no
+    // pointers; the bytes live as long as the slice.
+    unsafe { std::slice::from_raw_parts(data.as_ptr().cast::<u8>(), std::mem::size_of_val(data)) }
 }
 
 fn vk_error(what: &str) -> impl Fn(vk::Result) -> String + '_ {
@@ -297,6 +314,7 @@ impl Vulkan {
             depth_format,
             pass_clear: vk::RenderPass::null(),
             pass_load: vk::RenderPass::null(),
+            set_layout: vk::DescriptorSetLayout::null(),
             layout: vk::PipelineLayout::null(),
             modules: Vec::new(),
             depth_pipeline: vk::Pipeline::null(),
@@ -370,7 +388,21 @@ impl Vulkan {
         let range = [vk::PushConstantRange::default()
             .stage_flags(vk::ShaderStageFlags::VERTEX | vk::ShaderStageFlags::FRAGMENT)
             .size(std::mem::size_of::<Push>() as u32)];
-        let info = vk::PipelineLayoutCreateInfo::default().push_constant_ranges(&range);
+        let bindings = [0, 1].map(|b| {
+            vk::DescriptorSetLayoutBinding::default()
+                .binding(b)
+                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                .descriptor_count(1)
+                .stage_flags(vk::ShaderStageFlags::VERTEX)
+        });
+        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+        // SAFETY: two storage buffers for the vertex stage.
+        self.set_layout = unsafe { d.create_descriptor_set_layout(&info, None) }
+            .map_err(vk_error("a descriptor set layout"))?;
+        let set_layouts = [self.set_layout];
+        let info = vk::PipelineLayoutCreateInfo::default()
+            .set_layouts(&set_layouts)
+            .push_constant_ranges(&range);
         // SAFETY: a layout with one push constant range.
         self.layout = unsafe { d.create_pipeline_layout(&info, None) }
             .map_err(vk_error("a pipeline layout"))?;
@@ -575,17 +607,26 @@ impl Vulkan {
 
     /// Uploads every triangle of `scene` (scene-local `f32`, three vertices
     /// each, in the scene's order, so an object's triangle range is its
-    /// vertex range ×3, all edges eroded), then `extra` triangles after
-    /// them with the edges to erode of each (bit i: the edge opposite
-    /// corner i), or says why the device cannot hold them.
-    pub fn upload(&self, scene: &Scene, extra: &[([Vec3; 3], u8)]) -> Result<SceneGeometry, String> {
-        let all_edges = scene.triangles().iter().map(|t| (t, 7u8));
-        let vertices: Vec<[f32; 4]> = all_edges
-            .chain(extra.iter().map(|(t, e)| (t, *e)))
-            .flat_map(|(t, e)| t.map(|v| v.extend(e as f32).to_array()))
+    /// vertex range ×3), then the `extra` triangles, with `apices`: per
+    /// triangle (scene's, then extra) and corner, the vertex index of the
+    /// neighbour across the opposite edge, or [`NO_NEIGHBOUR`]. Says why
+    /// when the device cannot hold them.
+    pub fn upload(
+        &self,
+        scene: &Scene,
+        extra: &[[Vec3; 3]],
+        apices: &[[u32; 3]],
+    ) -> Result<SceneGeometry, String> {
+        let count = scene.triangles().len() + extra.len();
+        assert_eq!(apices.len(), count, "one set of neighbours a triangle");
+        let vertices: Vec<[f32; 4]> = scene
+            .triangles()
+            .iter()
+            .chain(extra)
+            .flat_map(|t| t.map(|v| v.extend(1.0).to_array()))
             .collect();
-        let count = vertices.len() / 3;
-        let bytes = (std::mem::size_of_val(vertices.as_slice()) as u64).max(16);
+        let bytes = std::mem::size_of_val(vertices.as_slice()) as u64
+            + std::mem::size_of_val(apices) as u64;
         // Leave room for the depth images and everything else.
         if bytes > self.heap_bytes / 4 {
             return Err(format!(
@@ -595,74 +636,159 @@ impl Vulkan {
                 self.heap_bytes >> 20
             ));
         }
+        let usage = vk::BufferUsageFlags::VERTEX_BUFFER | vk::BufferUsageFlags::STORAGE_BUFFER;
+        let (buffer, memory) = self.host_buffer(bytes_of(&vertices), usage)?;
+        let (apices_buffer, apices_memory) =
+            match self.host_buffer(bytes_of(apices), vk::BufferUsageFlags::STORAGE_BUFFER) {
+                Ok(b) => b,
+                Err(e) => {
+                    self.free_buffer(buffer, memory);
+                    return Err(e);
+                }
+            };
+        let (pool, set) = match self.descriptor_set(buffer, apices_buffer) {
+            Ok(s) => s,
+            Err(e) => {
+                self.free_buffer(buffer, memory);
+                self.free_buffer(apices_buffer, apices_memory);
+                return Err(e);
+            }
+        };
+        Ok(SceneGeometry {
+            buffer,
+            memory,
+            apices: apices_buffer,
+            apices_memory,
+            pool,
+            set,
+            bytes,
+        })
+    }
+
+    /// A buffer in host-visible memory holding `data`.
+    fn host_buffer(
+        &self,
+        data: &[u8],
+        usage: vk::BufferUsageFlags,
+    ) -> Result<(vk::Buffer, vk::DeviceMemory), String> {
         let d = &self.device;
+        let size = (data.len() as u64).max(16);
         let info = vk::BufferCreateInfo::default()
-            .size(bytes)
-            .usage(vk::BufferUsageFlags::VERTEX_BUFFER)
+            .size(size)
+            .usage(usage)
             .sharing_mode(vk::SharingMode::EXCLUSIVE);
-        // SAFETY: a plain vertex buffer.
-        let buffer = unsafe { d.create_buffer(&info, None) }.map_err(vk_error("a vertex buffer"))?;
+        // SAFETY: a plain buffer.
+        let buffer = unsafe { d.create_buffer(&info, None) }.map_err(vk_error("a buffer"))?;
         // SAFETY: the buffer just made.
         let needs = unsafe { d.get_buffer_memory_requirements(buffer) };
         let host = vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
-        let allocate = || -> Result<vk::DeviceMemory, String> {
-            let kind = self
-                .memory_type(needs.memory_type_bits, host)
-                .ok_or("the device has no host-visible memory for vertices")?;
-            let info = vk::MemoryAllocateInfo::default()
-                .allocation_size(needs.size)
-                .memory_type_index(kind);
-            // SAFETY: an allocation of a type the buffer accepts.
-            let memory = unsafe { d.allocate_memory(&info, None) }.map_err(|e| {
-                format!("the scene's {} MB do not fit the device's memory ({e})", bytes >> 20)
-            })?;
-            // SAFETY: mapping the whole fresh allocation, copying the
-            // triangles (plain f32 triples) into it, unmapping.
-            unsafe {
-                let to = d
-                    .map_memory(memory, 0, needs.size, vk::MemoryMapFlags::empty())
-                    .map_err(vk_error("mapping vertex memory"));
-                let to = match to {
-                    Ok(p) => p,
-                    Err(e) => {
-                        d.free_memory(memory, None);
-                        return Err(e);
-                    }
-                };
-                std::ptr::copy_nonoverlapping(
-                    vertices.as_ptr().cast::<u8>(),
-                    to.cast::<u8>(),
-                    std::mem::size_of_val(vertices.as_slice()),
-                );
-                d.unmap_memory(memory);
-                if let Err(e) = d.bind_buffer_memory(buffer, memory, 0) {
-                    d.free_memory(memory, None);
-                    return Err(format!("binding vertex memory: {e}"));
-                }
-            }
-            Ok(memory)
+        let Some(kind) = self.memory_type(needs.memory_type_bits, host) else {
+            // SAFETY: the buffer is unused.
+            unsafe { d.destroy_buffer(buffer, None) };
+            return Err("the device has no host-visible memory for the scene".into());
         };
-        match allocate() {
-            Ok(memory) => Ok(SceneGeometry {
-                buffer,
-                memory,
-                bytes,
-            }),
-            Err(e) => {
-                // SAFETY: the buffer is unused.
-                unsafe { d.destroy_buffer(buffer, None) };
-                Err(e)
+        let info = vk::MemoryAllocateInfo::default()
+            .allocation_size(needs.size)
+            .memory_type_index(kind);
+        // SAFETY: an allocation of a type the buffer accepts; mapped whole,
+        // filled with `data`, unmapped, then bound.
+        unsafe {
+            let memory = match d.allocate_memory(&info, None) {
+                Ok(m) => m,
+                Err(e) => {
+                    d.destroy_buffer(buffer, None);
+                    return Err(format!(
+                        "the scene's {} MB do not fit the device's memory ({e})",
+                        size >> 20
+                    ));
+                }
+            };
+            let filled = d
+                .map_memory(memory, 0, needs.size, vk::MemoryMapFlags::empty())
+                .map(|to| {
+                    std::ptr::copy_nonoverlapping(data.as_ptr(), to.cast::<u8>(), data.len());
+                    d.unmap_memory(memory);
+                })
+                .and_then(|()| d.bind_buffer_memory(buffer, memory, 0));
+            if let Err(e) = filled {
+                self.free_buffer(buffer, memory);
+                return Err(format!("filling a buffer: {e}"));
             }
+            Ok((buffer, memory))
         }
+    }
+
+    fn free_buffer(&self, buffer: vk::Buffer, memory: vk::DeviceMemory) {
+        // SAFETY: called only for buffers no submission uses.
+        unsafe {
+            self.device.destroy_buffer(buffer, None);
+            self.device.free_memory(memory, None);
+        }
+    }
+
+    /// A pool with one set naming the two buffers the depth pass reads.
+    fn descriptor_set(
+        &self,
+        positions: vk::Buffer,
+        apices: vk::Buffer,
+    ) -> Result<(vk::DescriptorPool, vk::DescriptorSet), String> {
+        let d = &self.device;
+        let sizes = [vk::DescriptorPoolSize {
+            ty: vk::DescriptorType::STORAGE_BUFFER,
+            descriptor_count: 2,
+        }];
+        let info = vk::DescriptorPoolCreateInfo::default()
+            .max_sets(1)
+            .pool_sizes(&sizes);
+        // SAFETY: a pool for one set of two storage buffers.
+        let pool = unsafe { d.create_descriptor_pool(&info, None) }
+            .map_err(vk_error("a descriptor pool"))?;
+        let layouts = [self.set_layout];
+        let info = vk::DescriptorSetAllocateInfo::default()
+            .descriptor_pool(pool)
+            .set_layouts(&layouts);
+        // SAFETY: one set from the pool just made; written before use.
+        let set = match unsafe { d.allocate_descriptor_sets(&info) } {
+            Ok(sets) => sets[0],
+            Err(e) => {
+                // SAFETY: the pool holds nothing in use.
+                unsafe { d.destroy_descriptor_pool(pool, None) };
+                return Err(format!("a descriptor set: {e}"));
+            }
+        };
+        let infos = [positions, apices].map(|b| {
+            [vk::DescriptorBufferInfo::default()
+                .buffer(b)
+                .offset(0)
+                .range(vk::WHOLE_SIZE)]
+        });
+        let writes = [0, 1].map(|i| {
+            vk::WriteDescriptorSet::default()
+                .dst_set(set)
+                .dst_binding(i as u32)
+                .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                .buffer_info(&infos[i])
+        });
+        // SAFETY: both buffers are live storage buffers.
+        unsafe { d.update_descriptor_sets(&writes, &[]) };
+        Ok((pool, set))
     }
 
     /// Frees a scene's triangles; the device thread must not be using them.
     pub fn release(&self, geometry: &SceneGeometry) {
         // SAFETY: every submission waits for its fence before `run`
-        // returns, so nothing on the device reads the buffer now.
+        // returns, so nothing on the device reads the buffers now; the
+        // pool frees its set.
         unsafe {
-            self.device.destroy_buffer(geometry.buffer, None);
-            self.device.free_memory(geometry.memory, None);
+            let d = &self.device;
+            d.destroy_descriptor_pool(geometry.pool, None);
+            for (b, m) in [
+                (geometry.buffer, geometry.memory),
+                (geometry.apices, geometry.apices_memory),
+            ] {
+                d.destroy_buffer(b, None);
+                d.free_memory(m, None);
+            }
         }
     }
 
@@ -965,6 +1091,14 @@ impl Vulkan {
             if !draws.is_empty() {
                 d.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, self.depth_pipeline);
                 d.cmd_bind_vertex_buffers(cmd, 0, &[geometry.buffer], &[0]);
+                d.cmd_bind_descriptor_sets(
+                    cmd,
+                    vk::PipelineBindPoint::GRAPHICS,
+                    self.layout,
+                    0,
+                    &[geometry.set],
+                    &[],
+                );
                 d.cmd_push_constants(cmd, self.layout, stages, 0, push.bytes());
                 for range in draws {
                     d.cmd_draw(cmd, (range.end - range.start) * 3, 1, range.start * 3, 0);
@@ -1020,6 +1154,7 @@ impl Drop for Vulkan {
                 d.destroy_shader_module(*m, None);
             }
             d.destroy_pipeline_layout(self.layout, None);
+            d.destroy_descriptor_set_layout(self.set_layout, None);
             d.destroy_render_pass(self.pass_clear, None);
             d.destroy_render_pass(self.pass_load, None);
             d.destroy_device(None);

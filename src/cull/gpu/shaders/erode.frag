@@ -3,8 +3,10 @@
 // snaps vertices to a subpixel grid (1/256 pixel on lavapipe), so without
 // this an occluder could cover a pixel centre that ground truth, exact in
 // f64, leaves to what lies behind it. The distance to an edge is its
-// barycentric coordinate over that coordinate's change per pixel. The
-// near plane's clipping edge is pulled in the same way (depth is 1 there).
+// barycentric coordinate over that coordinate's change per pixel. Only the
+// edges scene.vert marks are pulled in: outlines and silhouettes, not edges
+// the surface runs on across. The near plane's clipping edge is pulled in
+// the same way (depth is 1 there).
 layout(location = 0) in vec3 bary;
 layout(location = 1) flat in uint erode;
 
