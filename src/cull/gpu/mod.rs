@@ -11,8 +11,10 @@
 //!   near-face test (§3.2), parallel units in front-to-back order and
 //!   multipass batched queries (§3.3), contribution and importance culling
 //!   (§3.4); why it is conservative is in its module doc;
-//! - [`vulkan`]: the device, the scene's triangles uploaded once, and the
-//!   passes of the views of one batch run in lock-step.
+//! - [`vulkan`]: the device, the scene's triangles uploaded once (with each
+//!   edge's neighbour, `adjacency.rs`, so depth is pulled in only at
+//!   outlines and silhouettes), and the passes of the views of one batch
+//!   run in lock-step.
 //!
 //! The depth buffer is drawn, by default, from occluder proxies: the
 //! scene's large planar occluders (polygons merged from one object's own
