@@ -60,6 +60,22 @@ enum Command {
     /// List every method: what it is for, and, with --scene, whether that
     /// scene supports it or why not.
     Methods(MethodsArgs),
+    /// Precompute what a scene's methods bake (occluder polygons, prisms)
+    /// into the bake folder, so that the next serve or eval starts warm.
+    ///
+    /// Bakes already there and whole are read, not made again; the log says
+    /// which, and why any was (re)built.
+    Bake(BakeArgs),
+}
+
+#[derive(Args, Debug)]
+struct BakeArgs {
+    /// The .gltf or .glb scene.
+    #[arg(long, value_name = "FILE")]
+    scene: PathBuf,
+    /// The bake folder [default: $XDG_CACHE_HOME/pvsd or ~/.cache/pvsd].
+    #[arg(long, value_name = "DIR")]
+    bake_dir: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -267,6 +283,7 @@ fn main() -> ExitCode {
         Command::Query(args) => query(args),
         Command::Eval(args) => eval(args),
         Command::Methods(args) => methods(args),
+        Command::Bake(args) => bake(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -495,6 +512,28 @@ fn query(args: QueryArgs) -> anyhow::Result<()> {
             .collect();
         println!("{}", names.join("\n"));
     }
+    Ok(())
+}
+
+fn bake(args: BakeArgs) -> anyhow::Result<()> {
+    let dir = args
+        .bake_dir
+        .or_else(BakeCache::default_dir)
+        .context("no bake folder: give --bake-dir (neither XDG_CACHE_HOME nor HOME is set)")?;
+    let scene = load_scene(&args.scene)?;
+    let context = MethodContext {
+        bake_dir: Some(dir.clone()),
+        ..MethodContext::of_this_machine()
+    };
+    let started = std::time::Instant::now();
+    let methods = SceneMethods::prepare_with(scene, &Registry::standard(), &context);
+    println!(
+        "{}: prepared in {} ms with the bakes in {} (methods: {})",
+        methods.scene().id,
+        started.elapsed().as_millis(),
+        dir.display(),
+        methods.names().join(", ")
+    );
     Ok(())
 }
 

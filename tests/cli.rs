@@ -280,3 +280,38 @@ fn serve_bakes_occluders_once_and_rebuilds_a_damaged_bake() {
     assert!(third.contains("checksum"), "{third}");
     assert!(start().contains("loaded a bake"));
 }
+
+/// `pvsd bake` makes the bakes a serve would, and finds them the next time.
+#[test]
+fn bake_makes_the_bakes_and_reuses_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("city.glb");
+    let (ok, _, err) = run(&[
+        "gen",
+        "city",
+        "--buildings",
+        "50",
+        "-o",
+        scene.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let bakes = dir.path().join("bakes");
+    let args = [
+        "bake",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--bake-dir",
+        bakes.to_str().unwrap(),
+    ];
+    let (ok, out, err) = run(&args);
+    assert!(ok && out.contains("prepared in"), "{out}{err}");
+    assert_eq!(
+        err.matches("baked").count(),
+        2,
+        "occluders and prisms: {err}"
+    );
+    assert_eq!(std::fs::read_dir(&bakes).unwrap().count(), 2);
+    let (ok, _, err) = run(&args);
+    assert!(ok);
+    assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
+}

@@ -6,6 +6,7 @@
 use std::ops::Range;
 
 use glam::Vec3;
+use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 use super::vulkan::NO_NEIGHBOUR;
@@ -25,33 +26,42 @@ fn key(v: Vec3) -> Key {
 /// triangles of no group have no neighbours.
 pub fn neighbours(triangles: &[[Vec3; 3]], groups: &[Vec<Range<u32>>]) -> Vec<[u32; 3]> {
     let mut out = vec![[NO_NEIGHBOUR; 3]; triangles.len()];
+    // Groups share no triangle: found on all cores, written after.
+    let pairs: Vec<Vec<(u32, u32)>> = groups
+        .par_iter()
+        .map(|group| shared_edges(triangles, group))
+        .collect();
+    for (first, second) in pairs.into_iter().flatten() {
+        out[(first / 3) as usize][(first % 3) as usize] = second;
+        out[(second / 3) as usize][(second % 3) as usize] = first;
+    }
+    out
+}
+
+/// The pairs of (3 × triangle + corner) of one group whose opposite edges
+/// are the same edge, shared by those two triangles only.
+fn shared_edges(triangles: &[[Vec3; 3]], group: &[Range<u32>]) -> Vec<(u32, u32)> {
     let mut edges: FxHashMap<(Key, Key), (u32, u32)> = FxHashMap::default();
-    for group in groups {
-        edges.clear();
-        for t in group.iter().flat_map(|r| r.clone()) {
-            let v = triangles[t as usize];
-            for i in 0..3 {
-                let (a, b) = (key(v[(i + 1) % 3]), key(v[(i + 2) % 3]));
-                let edge = if a < b { (a, b) } else { (b, a) };
-                let here = 3 * t + i as u32;
-                match edges.get_mut(&edge) {
-                    None => {
-                        edges.insert(edge, (here, NO_NEIGHBOUR));
-                    }
-                    Some(seen) if seen.1 == NO_NEIGHBOUR => seen.1 = here,
-                    // A third triangle on one edge: no single neighbour.
-                    Some(seen) => *seen = (NO_NEIGHBOUR, NO_NEIGHBOUR),
+    for t in group.iter().flat_map(|r| r.clone()) {
+        let v = triangles[t as usize];
+        for i in 0..3 {
+            let (a, b) = (key(v[(i + 1) % 3]), key(v[(i + 2) % 3]));
+            let edge = if a < b { (a, b) } else { (b, a) };
+            let here = 3 * t + i as u32;
+            match edges.get_mut(&edge) {
+                None => {
+                    edges.insert(edge, (here, NO_NEIGHBOUR));
                 }
-            }
-        }
-        for &(first, second) in edges.values() {
-            if first != NO_NEIGHBOUR && second != NO_NEIGHBOUR {
-                out[(first / 3) as usize][(first % 3) as usize] = second;
-                out[(second / 3) as usize][(second % 3) as usize] = first;
+                Some(seen) if seen.1 == NO_NEIGHBOUR => seen.1 = here,
+                // A third triangle on one edge: no single neighbour.
+                Some(seen) => *seen = (NO_NEIGHBOUR, NO_NEIGHBOUR),
             }
         }
     }
-    out
+    edges
+        .into_values()
+        .filter(|&(first, second)| first != NO_NEIGHBOUR && second != NO_NEIGHBOUR)
+        .collect()
 }
 
 #[cfg(test)]

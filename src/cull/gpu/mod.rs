@@ -223,9 +223,18 @@ impl GpuCulling {
             triangles.extend_from_slice(fan);
             groups.push(std::iter::once(at..triangles.len() as u32).collect());
         }
+        let started = std::time::Instant::now();
         let apices = adjacency::neighbours(&triangles, &groups);
+        let adjacency_ms = started.elapsed().as_secs_f64() * 1e3;
         let proxies = &triangles[start as usize..];
         let geometry = gpu.vulkan.upload(&scene, proxies, &apices)?;
+        tracing::debug!(
+            scene = %scene.id,
+            triangles = triangles.len(),
+            adjacency_ms,
+            upload_ms = started.elapsed().as_secs_f64() * 1e3 - adjacency_ms,
+            "gpu geometry"
+        );
         Ok(GpuCulling {
             grid: Grid::build(&scene),
             scene,

@@ -54,7 +54,7 @@ use crate::cull::{
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
 use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
-use crate::scene::Scene;
+use crate::scene::{BakeCache, Scene};
 use crate::spatial::QuadTree;
 
 /// `areas=true`: each visible id carries a bound of the pixels it covers.
@@ -108,7 +108,12 @@ pub const ENTRY: MethodEntry = MethodEntry {
 };
 
 fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
-    Ok(Arc::new(HorizonCulling::new(p.scene().clone())?))
+    let scene = p.scene().clone();
+    let prisms = match &p.context().bake_dir {
+        Some(dir) => Prisms::find_baked(&scene, &BakeCache::new(dir))?,
+        None => Prisms::find(&scene)?,
+    };
+    Ok(Arc::new(HorizonCulling::with_prisms(scene, prisms)))
 }
 
 /// Occlusion horizons over a quadtree of the scene, with the prisms proven
@@ -123,12 +128,16 @@ impl HorizonCulling {
     /// The method for `scene`, or why the scene is no height field for it.
     pub fn new(scene: Arc<Scene>) -> Result<HorizonCulling, String> {
         let prisms = Prisms::find(&scene)?;
-        let quadtree = QuadTree::build(&scene);
-        Ok(HorizonCulling {
+        Ok(HorizonCulling::with_prisms(scene, prisms))
+    }
+
+    /// The method for `scene` with its prisms, found already.
+    pub fn with_prisms(scene: Arc<Scene>, prisms: Prisms) -> HorizonCulling {
+        HorizonCulling {
+            quadtree: QuadTree::build(&scene),
             scene,
-            quadtree,
             prisms,
-        })
+        }
     }
 
     /// The prisms it occludes with.

@@ -36,7 +36,7 @@ use std::ops::Range;
 use glam::{DVec2, DVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::scene::{Object, Scene};
+use crate::scene::{BakeCache, Object, Scene};
 
 /// At most this many prisms per object (the paper: "a small set").
 pub const MAX_PRISMS: usize = 3;
@@ -69,8 +69,94 @@ pub struct Prism {
     pub top: f64,
 }
 
+/// What a bake of the prisms depends on beyond the scene file: change it
+/// whenever how prisms are proven changes, so that old bakes are rebuilt.
+const BAKE_PARAMS: &str = "prisms-v1";
+
+/// The bake of a scene's prisms (or of why it has none): a tag byte (1:
+/// prisms, 0: the reason, UTF-8); then the ground (`f64`), a `u32` count
+/// of prisms, each a `u32` count of footprint corners, two `f64` each, and
+/// its top (`f64`); then a `u32` count of objects, each its range of
+/// prisms (two `u32`). Little-endian.
+fn encode(found: &Result<Prisms, String>) -> Vec<u8> {
+    let mut out = Vec::new();
+    match found {
+        Err(reason) => {
+            out.push(0);
+            out.extend_from_slice(reason.as_bytes());
+        }
+        Ok(p) => {
+            out.push(1);
+            out.extend_from_slice(&p.ground.to_le_bytes());
+            out.extend_from_slice(&(p.prisms.len() as u32).to_le_bytes());
+            for prism in &p.prisms {
+                out.extend_from_slice(&(prism.footprint.len() as u32).to_le_bytes());
+                for c in &prism.footprint {
+                    out.extend_from_slice(&c.x.to_le_bytes());
+                    out.extend_from_slice(&c.y.to_le_bytes());
+                }
+                out.extend_from_slice(&prism.top.to_le_bytes());
+            }
+            out.extend_from_slice(&(p.ranges.len() as u32).to_le_bytes());
+            for r in &p.ranges {
+                out.extend_from_slice(&r.start.to_le_bytes());
+                out.extend_from_slice(&r.end.to_le_bytes());
+            }
+        }
+    }
+    out
+}
+
+fn decode(bytes: &[u8]) -> Result<Result<Prisms, String>, String> {
+    let (&tag, rest) = bytes.split_first().ok_or("prisms: empty")?;
+    if tag == 0 {
+        let reason = std::str::from_utf8(rest).map_err(|_| "prisms: a reason not UTF-8")?;
+        return Ok(Err(reason.to_string()));
+    }
+    let mut at = 0usize;
+    let mut take = |n: usize| -> Result<&[u8], String> {
+        let part = rest.get(at..at + n).ok_or("prisms: truncated")?;
+        at += n;
+        Ok(part)
+    };
+    let f64_of = |b: &[u8]| f64::from_le_bytes(b.try_into().expect("8 bytes"));
+    let u32_of = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
+    let ground = f64_of(take(8)?);
+    let count = u32_of(take(4)?);
+    let mut prisms = Vec::with_capacity(count.min(1 << 20) as usize);
+    for _ in 0..count {
+        let corners = u32_of(take(4)?);
+        let mut footprint = Vec::with_capacity(corners.min(1 << 16) as usize);
+        for _ in 0..corners {
+            let x = f64_of(take(8)?);
+            let z = f64_of(take(8)?);
+            footprint.push(DVec2::new(x, z));
+        }
+        let top = f64_of(take(8)?);
+        prisms.push(Prism { footprint, top });
+    }
+    let objects = u32_of(take(4)?);
+    let mut ranges = Vec::with_capacity(objects.min(1 << 24) as usize);
+    for _ in 0..objects {
+        let start = u32_of(take(4)?);
+        let end = u32_of(take(4)?);
+        if start > end || end > count {
+            return Err("prisms: a range outside the list".into());
+        }
+        ranges.push(start..end);
+    }
+    if at != rest.len() {
+        return Err("prisms: bytes left over".into());
+    }
+    Ok(Ok(Prisms {
+        ground,
+        prisms,
+        ranges,
+    }))
+}
+
 /// The prisms of a scene's objects, and the ground level they stand on.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Prisms {
     ground: f64,
     prisms: Vec<Prism>,
@@ -115,6 +201,22 @@ impl Prisms {
             prisms,
             ranges,
         })
+    }
+
+    /// [`Prisms::find`], read from `cache` when an earlier run baked the
+    /// prisms of this scene file (or the reason it has none), and baked
+    /// there when not.
+    pub fn find_baked(scene: &Scene, cache: &BakeCache) -> Result<Prisms, String> {
+        cache
+            .load_or_build(
+                scene,
+                "prisms",
+                BAKE_PARAMS,
+                || Prisms::find(scene),
+                encode,
+                decode,
+            )
+            .0
     }
 
     /// The ground level `G`: no object reaches below it; every prism stands on it.
@@ -477,6 +579,36 @@ fn object_prisms(scene: &Scene, object: &Object, ground: f64) -> Vec<Prism> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Baked prisms are the proven ones, bit for bit; so is a baked reason.
+    #[test]
+    fn baked_prisms_are_the_found_ones() {
+        use crate::scene::generate::{CityOptions, OfficeOptions, city, office};
+        use crate::scene::{Baked, load_slice};
+        let dir = tempfile::tempdir().unwrap();
+        let cache = BakeCache::new(dir.path());
+        let path = std::path::Path::new("x.glb");
+        let city = city(&CityOptions {
+            buildings: 60,
+            ..CityOptions::default()
+        });
+        let office = office(&OfficeOptions::default());
+        for doc in [city, office] {
+            let scene = load_slice("x", &doc.to_glb(), None, path).unwrap();
+            let found = Prisms::find(&scene);
+            assert_eq!(Prisms::find_baked(&scene, &cache), found);
+            let (loaded, how) = cache.load_or_build(
+                &scene,
+                "prisms",
+                BAKE_PARAMS,
+                || Err("not built".into()),
+                encode,
+                decode,
+            );
+            assert_eq!((loaded, how), (found, Baked::Loaded));
+        }
+    }
+
     use crate::scene::SceneBuilder;
     use crate::scene::generate::MeshBuilder;
 
