@@ -315,3 +315,52 @@ fn bake_makes_the_bakes_and_reuses_them() {
     assert!(ok);
     assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
 }
+
+/// Two bakers at once on one folder (two servers starting together): both
+/// finish, and what they leave loads.
+#[test]
+fn two_bakers_at_once_leave_whole_bakes() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("city.glb");
+    let (ok, _, err) = run(&[
+        "gen",
+        "city",
+        "--buildings",
+        "300",
+        "-o",
+        scene.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let bakes = dir.path().join("bakes");
+    let args = [
+        "bake",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--bake-dir",
+        bakes.to_str().unwrap(),
+    ];
+    let children: Vec<_> = (0..2)
+        .map(|_| {
+            pvsd()
+                .args(args)
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::null())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for mut c in children {
+        assert!(c.wait().unwrap().success());
+    }
+    let (ok, _, err) = run(&args);
+    assert!(ok);
+    assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
+    let names: Vec<String> = std::fs::read_dir(&bakes)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| n.ends_with(".bake")),
+        "leftovers: {names:?}"
+    );
+}
