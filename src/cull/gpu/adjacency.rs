@@ -9,7 +9,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
-use super::vulkan::NO_NEIGHBOUR;
+use super::vulkan::{FLAT, NO_NEIGHBOUR};
 
 /// A vertex's exact position, as a key.
 type Key = [u32; 3];
@@ -32,10 +32,30 @@ pub fn neighbours(triangles: &[[Vec3; 3]], groups: &[Vec<Range<u32>>]) -> Vec<[u
         .map(|group| shared_edges(triangles, group))
         .collect();
     for (first, second) in pairs.into_iter().flatten() {
-        out[(first / 3) as usize][(first % 3) as usize] = second;
-        out[(second / 3) as usize][(second % 3) as usize] = first;
+        // Two triangles of one plane continue each other whatever the
+        // view: no per-view test needed.
+        let flat = coplanar(triangles, first, second) && coplanar(triangles, second, first);
+        out[(first / 3) as usize][(first % 3) as usize] = if flat { FLAT } else { second };
+        out[(second / 3) as usize][(second % 3) as usize] = if flat { FLAT } else { first };
     }
     out
+}
+
+/// Whether the far corner `other` (a vertex index) lies in the plane of
+/// the triangle of vertex `here`, up to a few `f32` ulps of the corners'
+/// size: merged occluder polygons are planar to 2 ulps, and a fold that
+/// shallow shows no pixel of silhouette.
+fn coplanar(triangles: &[[Vec3; 3]], here: u32, other: u32) -> bool {
+    let t = triangles[(here / 3) as usize].map(|v| v.as_dvec3());
+    let q = triangles[(other / 3) as usize][(other % 3) as usize].as_dvec3();
+    let n = (t[1] - t[0]).cross(t[2] - t[0]);
+    let size = t
+        .iter()
+        .chain([&q])
+        .map(|v| v.abs().max_element())
+        .fold(0.0, f64::max);
+    let length = n.length();
+    length > 0.0 && (n.dot(q - t[0]) / length).abs() <= 8.0 * f32::EPSILON as f64 * size
 }
 
 /// The pairs of (3 × triangle + corner) of one group whose opposite edges
@@ -75,9 +95,13 @@ mod tests {
         let one = |r: Range<u32>| std::iter::once(r).collect::<Vec<_>>();
         let n = neighbours(&tris, &[one(0..2)]);
         // Triangle 0's edge opposite corner 1 (c–a) is shared with
-        // triangle 1's edge opposite corner 2 (a–c): far corners b and d.
-        assert_eq!(n[0], [NO_NEIGHBOUR, 3 + 2, NO_NEIGHBOUR]);
-        assert_eq!(n[1], [NO_NEIGHBOUR, NO_NEIGHBOUR, 1]);
+        // triangle 1's edge opposite corner 2 (a–c), in one plane.
+        assert_eq!(n[0], [NO_NEIGHBOUR, FLAT, NO_NEIGHBOUR]);
+        assert_eq!(n[1], [NO_NEIGHBOUR, NO_NEIGHBOUR, FLAT]);
+        // Folded along the diagonal: the far corners (b, and d lifted).
+        let folded = [[a, b, c], [a, c, d + Vec3::Z * 0.5]];
+        let n = neighbours(&folded, &[one(0..2)]);
+        assert_eq!((n[0][1], n[1][2]), (3 + 2, 1));
         // In different groups they are strangers.
         let apart = neighbours(&tris, &[one(0..1), one(1..2)]);
         assert!(apart.iter().flatten().all(|&v| v == NO_NEIGHBOUR));

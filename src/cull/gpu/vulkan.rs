@@ -89,6 +89,10 @@ pub struct SceneGeometry {
 /// An edge without a neighbour in [`Vulkan::upload`]'s `apices`.
 pub const NO_NEIGHBOUR: u32 = u32::MAX;
 
+/// An edge whose neighbour lies in the same plane: the surface continues
+/// across it from every view.
+pub const FLAT: u32 = u32::MAX - 1;
+
 /// What [`Vulkan::run`] spent, for the README's "where the time goes".
 #[derive(Clone, Copy, Debug, Default)]
 pub struct StepTimes {

@@ -25,12 +25,14 @@ layout(std430, set = 0, binding = 0) readonly buffer Positions {
     vec4 positions[];
 };
 // Per triangle and corner i: the vertex (index into positions) of the
-// neighbour across the edge opposite i, or NONE.
+// neighbour across the edge opposite i; NONE when there is none, FLAT when
+// the neighbour lies in the triangle's plane (it continues from any view).
 layout(std430, set = 0, binding = 1) readonly buffer Apices {
     uint apex[];
 };
 
 const uint NONE = 4294967295u;
+const uint FLAT = 4294967294u;
 
 vec3 from_eye(uint vertex) {
     return (positions[vertex].xyz - push.eye.xyz) - push.eye_low.xyz;
@@ -41,35 +43,38 @@ void main() {
     uint tri = v / 3u;
     uint corner = v - tri * 3u;
     bary = vec3(corner == 0u ? 1.0 : 0.0, corner == 1u ? 1.0 : 0.0, corner == 2u ? 1.0 : 0.0);
-    vec3 c0 = from_eye(tri * 3u);
-    vec3 c1 = from_eye(tri * 3u + 1u);
-    vec3 c2 = from_eye(tri * 3u + 2u);
-    uint mask = 0u;
-    for (uint i = 0u; i < 3u; i++) {
-        uint q = apex[tri * 3u + i];
-        if (q == NONE) {
-            mask |= 1u << i;
-            continue;
-        }
-        vec3 p = i == 0u ? c0 : (i == 1u ? c1 : c2);
-        vec3 a = i == 0u ? c1 : (i == 1u ? c2 : c0);
-        vec3 b = i == 0u ? c2 : (i == 1u ? c0 : c1);
-        vec3 o = from_eye(q);
-        // The plane through the eye and the edge: the surface continues
-        // across the edge when the two far corners lie clearly on
-        // opposite sides of it; anything else (a fold, or too close to
-        // tell) erodes.
-        vec3 m = cross(a, b);
-        float sp = dot(m, p);
-        float so = dot(m, o);
-        float tp = 1e-5 * length(m) * length(p);
-        float to = 1e-5 * length(m) * length(o);
-        bool across = (sp > tp && so < -to) || (sp < -tp && so > to);
-        if (!across) {
-            mask |= 1u << i;
+    uint q[3] = uint[3](apex[tri * 3u], apex[tri * 3u + 1u], apex[tri * 3u + 2u]);
+    uint mask = (q[0] == NONE ? 1u : 0u) | (q[1] == NONE ? 2u : 0u) | (q[2] == NONE ? 4u : 0u);
+    // Only a neighbour out of the triangle's plane needs the view to tell
+    // a silhouette (most edges of flat walls and proxies have none).
+    if (q[0] < FLAT || q[1] < FLAT || q[2] < FLAT) {
+        vec3 c0 = from_eye(tri * 3u);
+        vec3 c1 = from_eye(tri * 3u + 1u);
+        vec3 c2 = from_eye(tri * 3u + 2u);
+        for (uint i = 0u; i < 3u; i++) {
+            if (q[i] >= FLAT) {
+                continue;
+            }
+            vec3 p = i == 0u ? c0 : (i == 1u ? c1 : c2);
+            vec3 a = i == 0u ? c1 : (i == 1u ? c2 : c0);
+            vec3 b = i == 0u ? c2 : (i == 1u ? c0 : c1);
+            vec3 o = from_eye(q[i]);
+            // The plane through the eye and the edge: the surface continues
+            // across the edge when the two far corners lie clearly on
+            // opposite sides of it; anything else (a fold, or too close to
+            // tell) erodes.
+            vec3 m = cross(a, b);
+            float sp = dot(m, p);
+            float so = dot(m, o);
+            float tp = 1e-5 * length(m) * length(p);
+            float to = 1e-5 * length(m) * length(o);
+            bool across = (sp > tp && so < -to) || (sp < -tp && so > to);
+            if (!across) {
+                mask |= 1u << i;
+            }
         }
     }
     erode = mask;
-    vec3 here = corner == 0u ? c0 : (corner == 1u ? c1 : c2);
+    vec3 here = (position.xyz - push.eye.xyz) - push.eye_low.xyz;
     gl_Position = push.clip_from_view * vec4(here, 1.0);
 }
