@@ -281,28 +281,24 @@ fn serve_bakes_occluders_once_and_rebuilds_a_damaged_bake() {
     assert!(start().contains("loaded a bake"));
 }
 
+/// A generated city of `buildings` in a scratch folder, and the arguments
+/// of `pvsd bake` for it with a bake folder beside it.
+fn city_to_bake(buildings: &str) -> (tempfile::TempDir, Vec<String>) {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("city.glb").to_string_lossy().into_owned();
+    let (ok, _, err) = run(&["gen", "city", "--buildings", buildings, "-o", &scene]);
+    assert!(ok, "{err}");
+    let bakes = dir.path().join("bakes").to_string_lossy().into_owned();
+    let args = ["bake", "--scene", &scene, "--bake-dir", &bakes].map(String::from);
+    (dir, args.to_vec())
+}
+
 /// `pvsd bake` makes the bakes a serve would, and finds them the next time.
 #[test]
 fn bake_makes_the_bakes_and_reuses_them() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("city.glb");
-    let (ok, _, err) = run(&[
-        "gen",
-        "city",
-        "--buildings",
-        "50",
-        "-o",
-        scene.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
+    let (dir, args) = city_to_bake("50");
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let bakes = dir.path().join("bakes");
-    let args = [
-        "bake",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--bake-dir",
-        bakes.to_str().unwrap(),
-    ];
     let (ok, out, err) = run(&args);
     assert!(ok && out.contains("prepared in"), "{out}{err}");
     assert_eq!(
@@ -320,29 +316,13 @@ fn bake_makes_the_bakes_and_reuses_them() {
 /// finish, and what they leave loads.
 #[test]
 fn two_bakers_at_once_leave_whole_bakes() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("city.glb");
-    let (ok, _, err) = run(&[
-        "gen",
-        "city",
-        "--buildings",
-        "300",
-        "-o",
-        scene.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
+    let (dir, args) = city_to_bake("300");
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let bakes = dir.path().join("bakes");
-    let args = [
-        "bake",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--bake-dir",
-        bakes.to_str().unwrap(),
-    ];
     let children: Vec<_> = (0..2)
         .map(|_| {
             pvsd()
-                .args(args)
+                .args(&args)
                 .stdout(std::process::Stdio::null())
                 .stderr(std::process::Stdio::null())
                 .spawn()

@@ -451,6 +451,17 @@ impl Vulkan {
             depth_write: bool,
             stencil: Option<vk::StencilOpState>,
         }
+        // Front faces only: each pixel of a box counts once (a queried box
+        // never reaches the near plane).
+        let query = |stencil| Kind {
+            vert: box_vert,
+            frag: nothing,
+            cull: vk::CullModeFlags::BACK,
+            vertex_input: false,
+            depth_test: true,
+            depth_write: false,
+            stencil,
+        };
         let kinds = [
             // Occluder depth: the scene's triangles.
             Kind {
@@ -464,29 +475,9 @@ impl Vulkan {
                 stencil: None,
             },
             // A query: a box, depth-tested, writing nothing.
-            Kind {
-                vert: box_vert,
-                frag: nothing,
-                // Front faces only: each pixel of a box counts once (a
-                // queried box never reaches the near plane).
-                cull: vk::CullModeFlags::BACK,
-                vertex_input: false,
-                depth_test: true,
-                depth_write: false,
-                stencil: None,
-            },
+            query(None),
             // A query counting only the important pixels.
-            Kind {
-                vert: box_vert,
-                frag: nothing,
-                // Front faces only: each pixel of a box counts once (a
-                // queried box never reaches the near plane).
-                cull: vk::CullModeFlags::BACK,
-                vertex_input: false,
-                depth_test: true,
-                depth_write: false,
-                stencil: Some(stencil_equal_zero),
-            },
+            query(Some(stencil_equal_zero)),
             // The importance mask into the stencil.
             Kind {
                 vert: screen_vert,
