@@ -344,3 +344,40 @@ fn two_bakers_at_once_leave_whole_bakes() {
         "leftovers: {names:?}"
     );
 }
+
+/// A bake killed at any moment (SIGKILL) leaves nothing that loads wrong:
+/// the next run either reads a whole bake or makes it again.
+#[test]
+fn a_killed_bake_leaves_nothing_that_loads_wrong() {
+    let (dir, args) = city_to_bake("1500");
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let bakes = dir.path().join("bakes");
+    for wait_ms in [30, 120, 250, 400, 600] {
+        let _ = std::fs::remove_dir_all(&bakes);
+        let mut child = pvsd()
+            .args(&args)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(wait_ms));
+        let _ = child.kill();
+        let _ = child.wait();
+        let (ok, _, err) = run(&args);
+        assert!(ok, "after a kill at {wait_ms} ms: {err}");
+        let loaded = err.matches("loaded a bake").count();
+        let baked = err.matches("none yet").count();
+        assert_eq!(
+            loaded + baked,
+            2,
+            "at {wait_ms} ms, every bake loads or is made: {err}"
+        );
+        assert!(
+            !err.contains("checksum") && !err.contains("truncated"),
+            "{err}"
+        );
+        // And the run after loads both.
+        let (_, _, err) = run(&args);
+        assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
+    }
+}
