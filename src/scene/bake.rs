@@ -63,11 +63,6 @@ impl BakeCache {
         Some(base.join("pvsd"))
     }
 
-    /// The folder.
-    pub fn dir(&self) -> &Path {
-        &self.dir
-    }
-
     /// The file of `kind` with `params` for the scene with `scene_hash`.
     pub fn path(&self, scene_hash: u128, kind: &str, params: &str) -> PathBuf {
         let p = xxh3_64(params.as_bytes());

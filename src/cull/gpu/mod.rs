@@ -175,16 +175,6 @@ impl Gpu {
             .clone()
     }
 
-    /// The device's name.
-    pub fn name(&self) -> &str {
-        self.vulkan.name()
-    }
-
-    /// The queue in front of its thread.
-    pub fn queue(&self) -> &Arc<DeviceQueue> {
-        &self.queue
-    }
-
     /// The device itself (tests count a query's pixels with it).
     pub fn vulkan(&self) -> &Vulkan {
         &self.vulkan
@@ -243,11 +233,6 @@ impl GpuCulling {
             proxies: start..start + proxies.len() as u32,
             movers: Mutex::new(Movers::default()),
         })
-    }
-
-    /// The grid it walks.
-    pub fn grid(&self) -> &Grid {
-        &self.grid
     }
 }
 

@@ -82,8 +82,6 @@ pub struct SceneGeometry {
     apices_memory: vk::DeviceMemory,
     pool: vk::DescriptorPool,
     set: vk::DescriptorSet,
-    /// Bytes on the device.
-    pub bytes: u64,
 }
 
 /// An edge without a neighbour in [`Vulkan::upload`]'s `apices`.
@@ -341,11 +339,6 @@ impl Vulkan {
     /// The device's name (`llvmpipe (LLVM 15.0.6, 256 bits)` for lavapipe).
     pub fn name(&self) -> &str {
         &self.name
-    }
-
-    /// The largest viewport it draws.
-    pub fn max_extent(&self) -> [u32; 2] {
-        self.max_extent
     }
 
     fn make_pipelines(&mut self) -> Result<(), String> {
@@ -656,7 +649,6 @@ impl Vulkan {
             apices_memory,
             pool,
             set,
-            bytes,
         })
     }
 
