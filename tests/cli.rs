@@ -152,7 +152,7 @@ fn cli_errors_are_one_clear_line() {
         ),
         (
             &[
-                "query", "--scene", s, "--eye", "0,1,0", "--dir", "1,0,0", "--method", "ddo",
+                "query", "--scene", s, "--eye", "0,1,0", "--dir", "1,0,0", "--method", "raster",
             ],
             "not supported by scene 'Sponza'",
         ),

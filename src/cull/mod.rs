@@ -15,7 +15,7 @@
 //!   (visibility classes, occluder selection, the kd hierarchy, tolerances);
 //!   [`occluder`]: the scene's large planar occluders;
 //! - one folder per method: [`frustum`], [`occlusion_tree`],
-//!   [`supporting_planes`], [`horizon`], [`gpu`]. A method imports from the shared
+//!   [`supporting_planes`], [`horizon`], [`ddo`], [`gpu`]. A method imports from the shared
 //!   modules, never from another method.
 //!
 //! **Invariant:** culling never mutates a scene; a conservative method never
@@ -44,7 +44,14 @@ macro_rules! methods {
     };
 }
 
-methods!(frustum, occlusion_tree, supporting_planes, horizon, gpu);
+methods!(
+    frustum,
+    occlusion_tree,
+    supporting_planes,
+    horizon,
+    ddo,
+    gpu
+);
 
 pub use device::{DeviceLimits, DeviceQueue};
 pub use dispatch::{Culled, Unanswered};

@@ -20,6 +20,7 @@ use super::device::DeviceQueue;
 use super::dispatch::cull_here;
 use super::frustum::FrustumCulling;
 use super::gpu::Gpu;
+use super::horizon::Prisms;
 use super::occluder::Occluders;
 use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodSpec};
 use super::{CullError, CullJob, View, VisibleSet};
@@ -76,6 +77,7 @@ pub struct Preparation<'a> {
     context: &'a MethodContext,
     kd_tree: OnceLock<Arc<KdTree>>,
     occluders: OnceLock<Option<Arc<Occluders>>>,
+    prisms: OnceLock<Result<Arc<Prisms>, String>>,
 }
 
 impl<'a> Preparation<'a> {
@@ -85,6 +87,7 @@ impl<'a> Preparation<'a> {
             context,
             kd_tree: OnceLock::new(),
             occluders: OnceLock::new(),
+            prisms: OnceLock::new(),
         }
     }
 
@@ -116,6 +119,21 @@ impl<'a> Preparation<'a> {
                 match &self.context.bake_dir {
                     Some(dir) => Occluders::find_baked(self.scene, &tree, &BakeCache::new(dir)),
                     None => Occluders::find(self.scene, &tree),
+                }
+                .map(Arc::new)
+            })
+            .clone()
+    }
+
+    /// The convex vertical prisms inside the scene's objects (read from the
+    /// bake cache when the context has one), or why the scene is no
+    /// height field over a ground.
+    pub fn prisms(&self) -> Result<Arc<Prisms>, String> {
+        self.prisms
+            .get_or_init(|| {
+                match &self.context.bake_dir {
+                    Some(dir) => Prisms::find_baked(self.scene, &BakeCache::new(dir)),
+                    None => Prisms::find(self.scene),
                 }
                 .map(Arc::new)
             })

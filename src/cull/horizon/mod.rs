@@ -54,7 +54,7 @@ use crate::cull::{
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
 use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
-use crate::scene::{BakeCache, Scene};
+use crate::scene::Scene;
 use crate::spatial::QuadTree;
 
 /// `areas=true`: each visible id carries a bound of the pixels it covers.
@@ -108,12 +108,11 @@ pub const ENTRY: MethodEntry = MethodEntry {
 };
 
 fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
-    let scene = p.scene().clone();
-    let prisms = match &p.context().bake_dir {
-        Some(dir) => Prisms::find_baked(&scene, &BakeCache::new(dir))?,
-        None => Prisms::find(&scene)?,
-    };
-    Ok(Arc::new(HorizonCulling::with_prisms(scene, prisms)))
+    let prisms = p.prisms()?;
+    Ok(Arc::new(HorizonCulling::with_prisms(
+        p.scene().clone(),
+        Prisms::clone(&prisms),
+    )))
 }
 
 /// Occlusion horizons over a quadtree of the scene, with the prisms proven

@@ -1,0 +1,722 @@
+//! `ddo`: directional discretized occluders (Bernardini, El-Sana,
+//! Klosowski 2000) for scenes of many small triangles, where no single
+//! polygon hides much (CAD assemblies, scans).
+//!
+//! The bake ([`bake`], §3) builds an octree over the static triangles and
+//! marks, for each face of each node and each viewspace region
+//! ([`regions`]), whether the face is a valid occluder from every eye of
+//! the region: whether the scene's opaque triangles between those eyes and
+//! the face hide all of it ([`validity`], whose doc says why that holds and
+//! why rounding cannot break it).
+//!
+//! At run time (§4, Fig. 7) the octree is walked front to back (the eye's
+//! octant first, then by the eye's side of each splitting plane). A node
+//! outside the frustum is dropped; one whose bounding rectangle on the
+//! occlusion map lies inside the union of occluder rectangles is hidden; a
+//! visible leaf reports its objects (each one whose box touches the
+//! frustum). When a node is done, each of its faces that the node lies
+//! between the eye and (the eye at least the node's size away) and whose
+//! mask has the eye's region is added to the map.
+//!
+//! **The map's plane** (§4.2) is the coordinate plane most facing the
+//! view: points are projected from the eye onto `z = 1`, `z` being the
+//! distance along the axis nearest the view direction. Only points with
+//! `z` at least a small positive share of the scene's size are projected:
+//! a node reaching nearer (beside or behind the plane through the eye, or
+//! across the near plane) is never tested against the map, only against
+//! the frustum, and an occluder face is cut to its part beyond that depth.
+//! A face perpendicular to the plane projects to a trapezoid, of which
+//! the largest axis-aligned rectangle inside is added.
+//!
+//! **Why a hidden node is hidden.** A node is tested after every node that
+//! added an occluder: those precede it in a front-to-back order, so along
+//! any ray from the eye the node's points come after the ray crosses the
+//! splitting plane between them, hence after the occluder face (the face
+//! lies on the eye's side of that plane). A point whose projection lies
+//! in an occluder's rectangle lies on a ray through that occluder face, so
+//! behind the opaque triangles that the bake proved to hide the face. When
+//! the eye lies exactly on a splitting plane, rays within that plane have
+//! no such order: faces added inside that node's subtree wait until the
+//! node is done. Those triangles lie between the face and the plane
+//! `t = H` of the face's frame, so along the ray at least `1 − s/h` of the
+//! way to the face (the eye `h ≥ s` away); a face is only used when that
+//! share of its nearest view depth is beyond the near plane, so no
+//! triangle the near plane clips away is relied on.
+
+mod bake;
+mod map;
+mod octree;
+mod regions;
+mod validity;
+
+use std::cmp::Ordering;
+use std::sync::Arc;
+
+use glam::{DVec2, DVec3};
+
+pub use bake::bake;
+pub use map::{CellGrid, OcclusionMap, Rect, RectUnion};
+pub use octree::{Node, Octree, OctreeParams};
+pub use regions::Regions;
+pub use validity::{CLIP, Crossing, crossing};
+
+use super::{
+    CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
+    MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
+};
+use crate::geom::{ALL_PLANES, PlaneMask, Side};
+use crate::scene::{BakeCache, Scene};
+
+/// `regions=32|64`: which of the baked masks is used.
+const REGIONS: &str = "regions";
+
+/// `map=exact|grid`: the occlusion map's form ([`map`]).
+const MAP: &str = "map";
+
+/// Cells along each side of the grid map.
+const CELLS: Ranged<usize> = Ranged {
+    key: "cells",
+    noun: "a whole number",
+    default: 256,
+    min: 8,
+    max: 1024,
+};
+
+/// `planes=all|best`: a map per coordinate plane and direction, each
+/// taking the faces parallel to it, or only the plane most facing the view
+/// (the paper's), taking every face.
+const PLANES: &str = "planes";
+
+const OPTIONS: [&str; 4] = [REGIONS, MAP, CELLS.key, PLANES];
+
+/// Projected depths below this share of the scene's size (plus the eye's
+/// distance from its origin) are not projected: far above the rounding of
+/// the depth itself, so a projected coordinate is off by at most ~10⁻¹⁰ of
+/// its size, which the map's slack covers.
+const DEPTH_FLOOR: f64 = 1e-6;
+
+/// A direction is carried to another map only when its component along
+/// that map's axis is at least this share of its length (within ~89.9999°).
+const DIRECTION_FLOOR: f64 = 1e-6;
+
+/// How many times a node's cone of directions is quartered when no one
+/// map hides it whole.
+const SPLITS: u32 = 1;
+
+/// When the frustum reaches the map plane's horizon, the map spans this
+/// window (±89° from the axis); rectangles leaving it are never hidden.
+const WIDE_WINDOW: f64 = 64.0;
+
+/// A face is used only when its triangles are beyond the near plane by
+/// this share of the near distance (plus the scene-size floor).
+const NEAR_SLACK: f64 = 1e-6;
+
+/// The method's registry entry; the table checks the 32-region masks and a
+/// coarse map too.
+pub const ENTRY: MethodEntry = MethodEntry {
+    name: "ddo",
+    purpose: "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
+    checked_with: &["regions=32", "map=grid:cells=16"],
+    build,
+};
+
+fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
+    // DDO masks only where they pay (DESIGN "Scenes"): a height field of
+    // closed solids on a ground is horizon's, which hides with its prisms
+    // at a fraction of a bake's cost.
+    if p.prisms().is_ok() {
+        return Err("the scene is a height field of solids on a ground: horizon's prisms serve it, DDO masks would not pay".into());
+    }
+    let scene = p.scene().clone();
+    let params = OctreeParams::default();
+    let tree = match &p.context().bake_dir {
+        Some(dir) => bake::bake_cached(&scene, params, &BakeCache::new(dir))?,
+        None => bake(&scene, params)?,
+    };
+    Ok(Arc::new(DdoCulling::new(scene, tree)))
+}
+
+/// Octree traversal against an occlusion map of baked DDOs.
+pub struct DdoCulling {
+    scene: Arc<Scene>,
+    tree: Octree,
+}
+
+impl DdoCulling {
+    /// The method for `scene` with its baked octree.
+    pub fn new(scene: Arc<Scene>, tree: Octree) -> DdoCulling {
+        DdoCulling { scene, tree }
+    }
+
+    /// The octree and its masks.
+    pub fn octree(&self) -> &Octree {
+        &self.tree
+    }
+}
+
+/// A client's state: its options and the buffers of one traversal.
+pub struct DdoState {
+    regions: Regions,
+    /// Only the plane most facing the view has a map (the paper's choice).
+    best_plane: bool,
+    /// One map per coordinate plane and direction ([`MapPlane::index`]).
+    maps: [OcclusionMap; 6],
+    /// The frame each object was last reported in.
+    seen: Vec<u32>,
+    frame: u32,
+    /// Occluder rectangles (with their map) waiting for a node the eye's
+    /// planes cut to end.
+    pending: Vec<(usize, Rect)>,
+}
+
+impl CullMethod for DdoCulling {
+    type State = DdoState;
+
+    fn name(&self) -> &'static str {
+        "ddo"
+    }
+
+    fn new_state(&self, options: &MethodOptions) -> Result<DdoState, MethodError> {
+        let r = options.reader("ddo", &OPTIONS);
+        let regions = match r.choice(REGIONS, &["64", "32"])? {
+            "32" => Regions::R32,
+            _ => Regions::R64,
+        };
+        let best_plane = r.choice(PLANES, &["all", "best"])? == "best";
+        let cells = r.ranged(&CELLS)?;
+        let grid = r.choice(MAP, &["exact", "grid"])? == "grid";
+        r.finish()?;
+        let map = || {
+            if grid {
+                OcclusionMap::Grid(CellGrid::new(cells))
+            } else {
+                OcclusionMap::Exact(RectUnion::default())
+            }
+        };
+        Ok(DdoState {
+            regions,
+            best_plane,
+            maps: std::array::from_fn(|_| map()),
+            seen: vec![0; self.scene.objects().len()],
+            frame: 0,
+            pending: Vec::new(),
+        })
+    }
+
+    fn is_conservative(&self, _: &DdoState) -> bool {
+        true
+    }
+
+    fn state_bytes(&self, state: &DdoState) -> usize {
+        std::mem::size_of::<DdoState>()
+            + state.maps.iter().map(OcclusionMap::heap_bytes).sum::<usize>()
+            + state.seen.capacity() * 4
+            + state.pending.capacity() * std::mem::size_of::<(usize, Rect)>()
+    }
+
+    fn cull(
+        &self,
+        view: &View,
+        state: &mut DdoState,
+        out: &mut VisibleSet,
+        _: &mut Occludees,
+    ) -> Result<CullCounters, CullError> {
+        state.frame = state.frame.wrapping_add(1);
+        if state.frame == 0 {
+            state.seen.fill(0);
+            state.frame = 1;
+        }
+        let projection = Projection::of(view, &self.scene);
+        for (m, map) in state.maps.iter_mut().enumerate() {
+            map.reset(projection.window(MapPlane::of_index(m), view));
+        }
+        state.pending.clear();
+        let mut walk = Walk {
+            tree: &self.tree,
+            scene: &self.scene,
+            view,
+            projection,
+            state,
+            out,
+            tested: 0,
+            deferring: 0,
+        };
+        walk.visit(0, ALL_PLANES);
+        Ok(CullCounters {
+            nodes_tested: walk.tested,
+            in_frustum: InFrustum::Unknown,
+        })
+    }
+}
+
+/// A map's plane: perpendicular to `axis`, looked at along `sign`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct MapPlane {
+    axis: usize,
+    /// +1 or −1.
+    sign: i8,
+}
+
+impl MapPlane {
+    /// The plane of map `m` (`2 × axis + (sign > 0)`).
+    fn of_index(m: usize) -> MapPlane {
+        MapPlane {
+            axis: m / 2,
+            sign: if m % 2 == 1 { 1 } else { -1 },
+        }
+    }
+
+    /// Its map's index.
+    fn index(self) -> usize {
+        2 * self.axis + usize::from(self.sign > 0)
+    }
+
+    /// The two axes of its map.
+    fn map_axes(self) -> (usize, usize) {
+        ((self.axis + 1) % 3, (self.axis + 2) % 3)
+    }
+}
+
+/// Perspective projection from the eye onto coordinate planes.
+#[derive(Clone, Copy, Debug)]
+struct Projection {
+    eye: DVec3,
+    /// The plane most facing the view (the paper's single map).
+    best: MapPlane,
+    /// Depths below this are not projected.
+    floor: f64,
+}
+
+impl Projection {
+    fn of(view: &View, scene: &Scene) -> Projection {
+        let f = view.basis().forward;
+        let axis = f.abs().max_position();
+        let eye = view.eye();
+        Projection {
+            eye,
+            best: MapPlane {
+                axis,
+                sign: if f[axis] >= 0.0 { 1 } else { -1 },
+            },
+            floor: DEPTH_FLOOR * (scene.bounds().extent().length() as f64 + eye.length()) + 1e-30,
+        }
+    }
+
+    /// The depth of `p` along `plane`'s axis.
+    fn depth(&self, plane: MapPlane, p: DVec3) -> f64 {
+        f64::from(plane.sign) * (p[plane.axis] - self.eye[plane.axis])
+    }
+
+    /// `p` on `plane`'s map, when deep enough.
+    fn project(&self, plane: MapPlane, p: DVec3) -> Option<DVec2> {
+        let z = self.depth(plane, p);
+        if z.partial_cmp(&self.floor).is_none_or(Ordering::is_lt) {
+            return None;
+        }
+        let (a, b) = plane.map_axes();
+        Some(DVec2::new(
+            (p[a] - self.eye[a]) / z,
+            (p[b] - self.eye[b]) / z,
+        ))
+    }
+
+    /// The window of `plane`'s map: the frustum's projection when every
+    /// corner of it is deep enough, else the wide window.
+    fn window(&self, plane: MapPlane, view: &View) -> Rect {
+        let corners = view.frustum().corners();
+        let projected: Option<Vec<DVec2>> =
+            corners.iter().map(|&c| self.project(plane, c)).collect();
+        match projected {
+            Some(points) => {
+                let r = Rect::around(points);
+                let pad = (r.hi - r.lo) * 1e-3;
+                Rect {
+                    lo: r.lo - pad,
+                    hi: r.hi + pad,
+                }
+            }
+            None => Rect {
+                lo: DVec2::splat(-WIDE_WINDOW),
+                hi: DVec2::splat(WIDE_WINDOW),
+            },
+        }
+    }
+
+    /// The rectangle around the image on `to`'s map of the cone of
+    /// directions `r` on `from`'s map, when every direction of it points
+    /// into `to`'s half-space (the cone's image is then the convex
+    /// quadrilateral of its four edges' images).
+    fn reproject(&self, from: MapPlane, r: Rect, to: MapPlane) -> Option<Rect> {
+        let (fa, fb) = from.map_axes();
+        let (ta, tb) = to.map_axes();
+        let mut points = [DVec2::ZERO; 4];
+        for (k, p) in points.iter_mut().enumerate() {
+            let mut d = DVec3::ZERO;
+            d[from.axis] = f64::from(from.sign);
+            d[fa] = if k & 1 == 0 { r.lo.x } else { r.hi.x };
+            d[fb] = if k & 2 == 0 { r.lo.y } else { r.hi.y };
+            let z = f64::from(to.sign) * d[to.axis];
+            if z.partial_cmp(&(DIRECTION_FLOOR * d.length())).is_none_or(Ordering::is_lt) {
+                return None;
+            }
+            *p = DVec2::new(d[ta] / z, d[tb] / z);
+        }
+        Some(Rect::around(points))
+    }
+
+    /// The rectangle around a node's projection on `plane`, when all of it
+    /// is deep enough.
+    fn node_rect(&self, plane: MapPlane, node: &Node) -> Option<Rect> {
+        let (lo, hi) = (node.min, node.max());
+        let mut points = [DVec2::ZERO; 8];
+        for (k, p) in points.iter_mut().enumerate() {
+            let c = DVec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            *p = self.project(plane, c)?;
+        }
+        Some(Rect::around(points))
+    }
+
+    /// A rectangle inside the projection on `plane` of the part of a face
+    /// (perpendicular to `face_axis` at `w`, spanning `[lo, hi]` on the
+    /// other axes) that is deep enough; `None` when nothing of it is.
+    fn face_rect(&self, plane: MapPlane, face_axis: usize, w: f64, lo: DVec3, hi: DVec3) -> Option<Rect> {
+        let (a, b) = plane.map_axes();
+        let e = self.eye;
+        if face_axis == plane.axis {
+            let z = f64::from(plane.sign) * (w - e[face_axis]);
+            if z.partial_cmp(&self.floor).is_none_or(Ordering::is_lt) {
+                return None;
+            }
+            return Some(Rect {
+                lo: DVec2::new((lo[a] - e[a]) / z, (lo[b] - e[b]) / z),
+                hi: DVec2::new((hi[a] - e[a]) / z, (hi[b] - e[b]) / z),
+            });
+        }
+        // The face spans depth along the plane's axis; along the third
+        // axis `j` its projection shrinks with depth: a trapezoid, of which
+        // this is the largest axis-aligned rectangle inside.
+        let (z0, z1) = {
+            let (p, q) = (self.depth(plane, lo), self.depth(plane, hi));
+            (p.min(q).max(self.floor), p.max(q))
+        };
+        if z1.partial_cmp(&z0).is_none_or(Ordering::is_le) {
+            return None;
+        }
+        let j = 3 - plane.axis - face_axis;
+        let d = w - e[face_axis];
+        let (i_lo, i_hi) = ((d / z0).min(d / z1), (d / z0).max(d / z1));
+        let (j0, j1) = (lo[j] - e[j], hi[j] - e[j]);
+        let (j_lo, j_hi) = ((j0 / z0).max(j0 / z1), (j1 / z0).min(j1 / z1));
+        if j_hi.partial_cmp(&j_lo).is_none_or(Ordering::is_le) {
+            return None;
+        }
+        let mut r = Rect {
+            lo: DVec2::ZERO,
+            hi: DVec2::ZERO,
+        };
+        for (slot, axis) in [a, b].into_iter().enumerate() {
+            let (l, h) = if axis == face_axis {
+                (i_lo, i_hi)
+            } else {
+                (j_lo, j_hi)
+            };
+            r.lo[slot] = l;
+            r.hi[slot] = h;
+        }
+        Some(r)
+    }
+}
+
+/// One traversal.
+struct Walk<'a> {
+    tree: &'a Octree,
+    scene: &'a Scene,
+    view: &'a View,
+    projection: Projection,
+    state: &'a mut DdoState,
+    out: &'a mut VisibleSet,
+    tested: u64,
+    /// Nodes cut by a plane through the eye that are being walked.
+    deferring: u32,
+}
+
+impl Walk<'_> {
+    fn visit(&mut self, n: usize, mask: PlaneMask) {
+        let node = self.tree.nodes()[n];
+        let frustum = self.view.frustum();
+        let (side, mask) = if mask == 0 {
+            (Side::Inside, 0)
+        } else {
+            frustum.classify(&node.bounds(), mask)
+        };
+        if side == Side::Outside {
+            return;
+        }
+        self.tested += 1;
+        if self.hidden(&node) {
+            return;
+        }
+        if node.is_leaf() {
+            for &id in self.tree.objects_of(&node) {
+                let seen = &mut self.state.seen[id as usize];
+                if *seen == self.state.frame {
+                    continue;
+                }
+                *seen = self.state.frame;
+                if frustum.intersects(&self.scene.objects()[id as usize].bounds) {
+                    self.out.push(id);
+                }
+            }
+        } else {
+            let eye = self.view.eye();
+            let centre = node.centre();
+            let octant = (0..3).fold(0, |k, i| k | (usize::from(eye[i] >= centre[i]) << i));
+            let cut = (0..3).any(|i| eye[i] == centre[i]);
+            self.deferring += u32::from(cut);
+            for k in 0..8 {
+                self.visit(node.children as usize + (octant ^ k), mask);
+            }
+            if cut {
+                self.deferring -= 1;
+                if self.deferring == 0 {
+                    for (m, r) in std::mem::take(&mut self.state.pending) {
+                        self.state.maps[m].add(r);
+                    }
+                }
+            }
+        }
+        self.add_faces(n, &node);
+    }
+
+    /// Whether every ray from the eye to the node passes through an
+    /// occluder of some map: the node's rectangle on a plane it projects
+    /// onto (the view's best, else another) is a cone of directions, tested
+    /// whole against every map (each seeing it as the rectangle around its
+    /// four edges' images), then in quarters, down to [`SPLITS`] levels,
+    /// so that a node seen past an edge or a corner of the surfaces in
+    /// front, partly through faces of one plane and partly of another, can
+    /// still be hidden.
+    fn hidden(&mut self, node: &Node) -> bool {
+        if self.state.maps.iter().all(OcclusionMap::is_empty) {
+            return false;
+        }
+        let best = self.projection.best;
+        let base = std::iter::once(best)
+            .chain((0..6).map(MapPlane::of_index))
+            .find_map(|plane| Some((plane, self.projection.node_rect(plane, node)?)));
+        match base {
+            Some((plane, r)) => self.covered(plane, r, 0),
+            None => false,
+        }
+    }
+
+    /// Whether every direction of the cone `r` (on `plane`'s map) passes
+    /// through an occluder.
+    fn covered(&mut self, plane: MapPlane, r: Rect, depth: u32) -> bool {
+        for m in 0..6 {
+            if self.state.maps[m].is_empty() {
+                continue;
+            }
+            let image = if m == plane.index() {
+                Some(r)
+            } else {
+                self.projection.reproject(plane, r, MapPlane::of_index(m))
+            };
+            if image.is_some_and(|i| self.state.maps[m].hides(i)) {
+                return true;
+            }
+        }
+        if depth == SPLITS {
+            return false;
+        }
+        let mid = (r.lo + r.hi) * 0.5;
+        (0..4).all(|q| {
+            let (x, y) = (q & 1 == 1, q & 2 == 2);
+            let quarter = Rect {
+                lo: DVec2::new(if x { mid.x } else { r.lo.x }, if y { mid.y } else { r.lo.y }),
+                hi: DVec2::new(if x { r.hi.x } else { mid.x }, if y { r.hi.y } else { mid.y }),
+            };
+            self.covered(plane, quarter, depth + 1)
+        })
+    }
+
+    /// Adds the faces of node `n` that are valid occluders from the eye.
+    fn add_faces(&mut self, n: usize, node: &Node) {
+        let eye = self.view.eye();
+        let (lo, hi) = (node.min, node.max());
+        let near = self.view.camera().near;
+        let forward = self.view.basis().forward;
+        for axis in 0..3 {
+            // The face the node lies between the eye and, and the eye's
+            // distance from its plane.
+            let (side, w, h) = if eye[axis] >= hi[axis] {
+                (0, lo[axis], eye[axis] - lo[axis])
+            } else if eye[axis] <= lo[axis] {
+                (1, hi[axis], hi[axis] - eye[axis])
+            } else {
+                continue;
+            };
+            if h.partial_cmp(&(CLIP * node.size)).is_none_or(Ordering::is_lt) {
+                continue;
+            }
+            let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
+            let c = node.centre();
+            let Some(region) = self
+                .state
+                .regions
+                .region_of((eye[ua] - c[ua]) / h, (eye[va] - c[va]) / h)
+            else {
+                continue;
+            };
+            let mask = self
+                .tree
+                .mask(n, octree::face_index(axis, side), self.state.regions);
+            if mask >> region & 1 == 0 {
+                continue;
+            }
+            let (mut face_lo, mut face_hi) = (lo, hi);
+            face_lo[axis] = w;
+            face_hi[axis] = w;
+            // The hiding triangles are at least `1 − 2s/h` of the way to
+            // the face: only use it when that is beyond the near plane.
+            let nearest = (0..4)
+                .map(|k| {
+                    let mut p = face_lo;
+                    p[ua] = if k & 1 == 0 { lo[ua] } else { hi[ua] };
+                    p[va] = if k & 2 == 0 { lo[va] } else { hi[va] };
+                    (p - eye).dot(forward)
+                })
+                .fold(f64::INFINITY, f64::min);
+            let share = 1.0 - CLIP * node.size / h;
+            let needed = near * (1.0 + NEAR_SLACK) + self.projection.floor;
+            if (share * nearest).partial_cmp(&needed).is_none_or(Ordering::is_lt) {
+                continue;
+            }
+            let plane = if self.state.best_plane {
+                self.projection.best
+            } else {
+                MapPlane {
+                    axis,
+                    sign: if side == 1 { 1 } else { -1 },
+                }
+            };
+            if let Some(r) = self.projection.face_rect(plane, axis, w, face_lo, face_hi) {
+                if self.deferring > 0 {
+                    self.state.pending.push((plane.index(), r));
+                } else {
+                    self.state.maps[plane.index()].add(r);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::Camera;
+    use crate::scene::SceneBuilder;
+
+    /// The closed surface of the box `[lo, hi]`, each face an `n × n` grid
+    /// whose corners are shared bit for bit with its neighbours; `hole`
+    /// leaves out cell `(i, j)` of the `+z` face.
+    pub(crate) fn grid_box(b: &mut SceneBuilder, lo: DVec3, hi: DVec3, n: usize, hole: Option<(usize, usize)>) {
+        let at = |axis: usize, i: usize| {
+            if i == n {
+                hi[axis]
+            } else {
+                lo[axis] + (hi[axis] - lo[axis]) * i as f64 / n as f64
+            }
+        };
+        let mut tris = Vec::new();
+        for axis in 0..3 {
+            let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
+            for side in 0..2 {
+                for i in 0..n {
+                    for j in 0..n {
+                        if axis == 2 && side == 1 && hole == Some((i, j)) {
+                            continue;
+                        }
+                        let p = |di: usize, dj: usize| {
+                            let mut p = DVec3::ZERO;
+                            p[axis] = if side == 0 { lo[axis] } else { hi[axis] };
+                            p[ua] = at(ua, i + di);
+                            p[va] = at(va, j + dj);
+                            p
+                        };
+                        tris.push([p(0, 0), p(1, 0), p(1, 1)]);
+                        tris.push([p(0, 0), p(1, 1), p(0, 1)]);
+                    }
+                }
+            }
+        }
+        b.add_triangles(tris, false);
+    }
+
+    fn boxed_scene(hole: Option<(usize, usize)>) -> Arc<Scene> {
+        let mut b = SceneBuilder::new("boxed");
+        b.begin_object("shell", None);
+        grid_box(&mut b, DVec3::splat(-1.0), DVec3::splat(1.0), 16, hole);
+        b.begin_object("inside", None);
+        grid_box(&mut b, DVec3::splat(-0.2), DVec3::splat(0.2), 2, None);
+        Arc::new(b.finish())
+    }
+
+    fn baked(scene: &Arc<Scene>) -> DdoCulling {
+        let params = OctreeParams {
+            leaf_triangles: 16,
+            max_depth: 6,
+        };
+        DdoCulling::new(scene.clone(), bake(scene, params).expect("a bake"))
+    }
+
+    fn cull(method: &DdoCulling, eye: DVec3, options: &str) -> Vec<u32> {
+        let scene = &method.scene;
+        let camera = Camera {
+            eye,
+            forward: -eye,
+            ..Camera::default()
+        };
+        let view = View::new(camera, scene).expect("a view");
+        let mut options_map = MethodOptions::new();
+        for kv in options.split(':').filter(|s| !s.is_empty()) {
+            let (k, v) = kv.split_once('=').expect("key=value");
+            options_map.insert(k, v);
+        }
+        let mut state = method.new_state(&options_map).expect("options");
+        let mut out = VisibleSet::new();
+        CullMethod::cull(method, &view, &mut state, &mut out, &mut Occludees::default())
+            .expect("a cull");
+        out.finish();
+        out.ids().to_vec()
+    }
+
+    #[test]
+    fn a_closed_shell_hides_what_it_holds() {
+        let method = baked(&boxed_scene(None));
+        for eye in [DVec3::new(0.3, 0.2, 5.0), DVec3::new(-4.0, 1.5, 0.7), DVec3::new(3.5, -1.0, 1.5)] {
+            for options in ["", "regions=32", "planes=best"] {
+                assert_eq!(cull(&method, eye, options), vec![0], "from {eye} with {options:?}");
+            }
+            // The grid's seams between faces stay open: it only may hide.
+            assert!(cull(&method, eye, "map=grid").contains(&0));
+        }
+    }
+
+    #[test]
+    fn a_hole_in_the_shell_shows_what_it_holds() {
+        // Cell (8, 8) of the +z face spans [0, 0.125]²: the inner box is
+        // seen through it from straight above.
+        let method = baked(&boxed_scene(Some((8, 8))));
+        let eye = DVec3::new(0.06, 0.06, 5.0);
+        for options in ["", "regions=32", "planes=best", "map=grid"] {
+            assert_eq!(cull(&method, eye, options), vec![0, 1], "with {options:?}");
+        }
+        // From the other side the shell is whole.
+        assert_eq!(cull(&method, DVec3::new(0.06, 0.06, -5.0), ""), vec![0]);
+    }
+}

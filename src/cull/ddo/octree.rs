@@ -1,0 +1,356 @@
+//! The DDO octree (Bernardini et al. §3.1, Fig. 5): a cube around the
+//! scene's static triangles, split into eight while a node holds more than
+//! [`OctreeParams::leaf_triangles`], each leaf listing the objects that
+//! have a triangle in it, and each face of each node carrying its
+//! occlusion masks (one per partition of [`Regions`]).
+//!
+//! A triangle goes to every child its box touches (closed boxes), so every
+//! point of every triangle lies in a leaf that lists its object: a leaf
+//! proved hidden hides everything of every object inside it.
+
+use glam::DVec3;
+
+use super::regions::Regions;
+use crate::geom::Aabb;
+use crate::scene::Scene;
+
+/// How the octree is cut.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OctreeParams {
+    /// A node with more triangles than this is split.
+    pub leaf_triangles: usize,
+    /// Nodes this deep are never split.
+    pub max_depth: u32,
+}
+
+impl Default for OctreeParams {
+    fn default() -> Self {
+        OctreeParams {
+            leaf_triangles: 256,
+            max_depth: 8,
+        }
+    }
+}
+
+/// One node: an axis-aligned cube.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    /// Its lowest corner, scene-local.
+    pub min: DVec3,
+    /// Its edge length.
+    pub size: f64,
+    /// The first of its eight children (child `k` holds the upper half
+    /// along axis `i` when bit `i` of `k` is set); 0 for a leaf.
+    pub children: u32,
+    /// Its objects' range of [`Octree::objects`] (leaves only).
+    pub objects: [u32; 2],
+}
+
+impl Node {
+    /// Its highest corner.
+    pub fn max(&self) -> DVec3 {
+        self.min + DVec3::splat(self.size)
+    }
+
+    /// Whether it has no children.
+    pub fn is_leaf(&self) -> bool {
+        self.children == 0
+    }
+
+    /// The `f32` box that holds it (rounded outwards).
+    pub fn bounds(&self) -> Aabb {
+        Aabb::enclosing(self.min, self.max())
+    }
+
+    /// The centre.
+    pub fn centre(&self) -> DVec3 {
+        self.min + DVec3::splat(self.size * 0.5)
+    }
+}
+
+/// A face of a node: `axis` and `side` (0: the face at `min[axis]`, 1: at
+/// `max[axis]`), as index `2 × axis + side` of a node's masks.
+pub fn face_index(axis: usize, side: usize) -> usize {
+    2 * axis + side
+}
+
+/// The octree with its masks.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Octree {
+    pub(super) nodes: Vec<Node>,
+    pub(super) objects: Vec<u32>,
+    /// Per node, per face, the 32-region mask.
+    pub(super) masks32: Vec<[u32; 6]>,
+    /// Per node, per face, the 64-region mask.
+    pub(super) masks64: Vec<[u64; 6]>,
+}
+
+/// An octree being built: the nodes and, per leaf, its triangles (what the
+/// bake's validity test searches; not kept after).
+pub struct Skeleton {
+    /// The nodes, root first; children of a node are consecutive.
+    pub nodes: Vec<Node>,
+    /// Leaf objects.
+    pub objects: Vec<u32>,
+    /// Per node, its range of `triangles` (leaves only).
+    pub triangle_ranges: Vec<[u32; 2]>,
+    /// Leaf triangles (indices into the triangle list it was built from).
+    pub triangles: Vec<u32>,
+}
+
+impl Skeleton {
+    /// The octree over `boxes` (one per triangle, scene-local) whose
+    /// triangles belong to `owner`; `None` when there are none.
+    pub fn build(boxes: &[(DVec3, DVec3)], owner: &[u32], params: OctreeParams) -> Option<Skeleton> {
+        let (lo, hi) = boxes.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), (a, b)| (lo.min(*a), hi.max(*b)),
+        );
+        if boxes.is_empty() || !lo.is_finite() || !hi.is_finite() {
+            return None;
+        }
+        // A cube, a hair larger than the box so that rounding in `max()`
+        // cannot leave a triangle's corner outside.
+        let extent = (hi - lo).max_element();
+        let size = extent * (1.0 + 1e-9) + extent.max(lo.abs().max_element()) * 1e-12 + 1e-30;
+        let mut s = Skeleton {
+            nodes: vec![Node {
+                min: lo,
+                size,
+                children: 0,
+                objects: [0, 0],
+            }],
+            objects: Vec::new(),
+            triangle_ranges: vec![[0, 0]],
+            triangles: Vec::new(),
+        };
+        let all: Vec<u32> = (0..boxes.len() as u32).collect();
+        s.split(0, all, 0, boxes, owner, params);
+        Some(s)
+    }
+
+    fn split(
+        &mut self,
+        at: usize,
+        tris: Vec<u32>,
+        depth: u32,
+        boxes: &[(DVec3, DVec3)],
+        owner: &[u32],
+        params: OctreeParams,
+    ) {
+        let node = self.nodes[at];
+        if tris.len() <= params.leaf_triangles || depth >= params.max_depth {
+            let start = self.triangles.len() as u32;
+            self.triangles.extend_from_slice(&tris);
+            self.triangle_ranges[at] = [start, self.triangles.len() as u32];
+            let mut ids: Vec<u32> = tris.iter().map(|&t| owner[t as usize]).collect();
+            ids.sort_unstable();
+            ids.dedup();
+            let start = self.objects.len() as u32;
+            self.objects.extend(ids);
+            self.nodes[at].objects = [start, self.objects.len() as u32];
+            return;
+        }
+        let half = node.size * 0.5;
+        let first = self.nodes.len();
+        self.nodes[at].children = first as u32;
+        let mut lists: [Vec<u32>; 8] = Default::default();
+        for (k, list) in lists.iter_mut().enumerate() {
+            let offset = DVec3::new(
+                (k & 1) as f64 * half,
+                ((k >> 1) & 1) as f64 * half,
+                ((k >> 2) & 1) as f64 * half,
+            );
+            let min = node.min + offset;
+            self.nodes.push(Node {
+                min,
+                size: half,
+                children: 0,
+                objects: [0, 0],
+            });
+            self.triangle_ranges.push([0, 0]);
+            let max = min + DVec3::splat(half);
+            *list = tris
+                .iter()
+                .copied()
+                .filter(|&t| {
+                    let (a, b) = boxes[t as usize];
+                    a.cmple(max).all() && b.cmpge(min).all()
+                })
+                .collect();
+        }
+        drop(tris);
+        for (k, list) in lists.into_iter().enumerate() {
+            self.split(first + k, list, depth + 1, boxes, owner, params);
+        }
+    }
+
+    /// The triangles of leaf `node`.
+    pub fn leaf_triangles(&self, node: usize) -> &[u32] {
+        let [a, b] = self.triangle_ranges[node];
+        &self.triangles[a as usize..b as usize]
+    }
+
+    /// Calls `visit` with every leaf whose cube touches the box `[lo, hi]`.
+    pub fn leaves_touching(&self, lo: DVec3, hi: DVec3, mut visit: impl FnMut(usize)) {
+        let mut stack = vec![0usize];
+        while let Some(n) = stack.pop() {
+            let node = &self.nodes[n];
+            if node.min.cmpgt(hi).any() || node.max().cmplt(lo).any() {
+                continue;
+            }
+            if node.is_leaf() {
+                visit(n);
+            } else {
+                stack.extend((0..8).map(|k| node.children as usize + k));
+            }
+        }
+    }
+
+    /// The finished octree with the masks found for each node.
+    pub fn finish(self, masks: Vec<([u32; 6], [u64; 6])>) -> Octree {
+        let (masks32, masks64) = masks.into_iter().unzip();
+        Octree {
+            nodes: self.nodes,
+            objects: self.objects,
+            masks32,
+            masks64,
+        }
+    }
+}
+
+impl Octree {
+    /// The nodes, root first.
+    pub fn nodes(&self) -> &[Node] {
+        &self.nodes
+    }
+
+    /// The objects of leaf `node`.
+    pub fn objects_of(&self, node: &Node) -> &[u32] {
+        &self.objects[node.objects[0] as usize..node.objects[1] as usize]
+    }
+
+    /// Node `n`'s mask for face `face` ([`face_index`]) with `regions`, widened to 64 bits.
+    pub fn mask(&self, n: usize, face: usize, regions: Regions) -> u64 {
+        match regions {
+            Regions::R32 => self.masks32[n][face] as u64,
+            Regions::R64 => self.masks64[n][face],
+        }
+    }
+
+    /// How many faces are valid from at least one region of `regions`.
+    pub fn valid_faces(&self, regions: Regions) -> usize {
+        (0..self.nodes.len())
+            .flat_map(|n| (0..6).map(move |f| (n, f)))
+            .filter(|&(n, f)| self.mask(n, f, regions) != 0)
+            .count()
+    }
+
+    /// The bytes of the bake payload (`proto/bake-format.md`, kind `ddo`).
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        out.extend_from_slice(&(self.nodes.len() as u32).to_le_bytes());
+        out.extend_from_slice(&(self.objects.len() as u32).to_le_bytes());
+        for (i, n) in self.nodes.iter().enumerate() {
+            for v in n.min.to_array() {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+            out.extend_from_slice(&n.size.to_le_bytes());
+            out.extend_from_slice(&n.children.to_le_bytes());
+            out.extend_from_slice(&n.objects[0].to_le_bytes());
+            out.extend_from_slice(&n.objects[1].to_le_bytes());
+            for m in self.masks32[i] {
+                out.extend_from_slice(&m.to_le_bytes());
+            }
+            for m in self.masks64[i] {
+                out.extend_from_slice(&m.to_le_bytes());
+            }
+        }
+        for o in &self.objects {
+            out.extend_from_slice(&o.to_le_bytes());
+        }
+        out
+    }
+
+    /// The octree of a payload, checked against `scene` (every object id
+    /// exists, every child and object range lies inside the arrays).
+    pub fn decode(bytes: &[u8], scene: &Scene) -> Result<Octree, String> {
+        let mut r = Reader { bytes, at: 0 };
+        let nodes = r.u32()? as usize;
+        let objects = r.u32()? as usize;
+        const NODE_BYTES: usize = 8 * 4 + 4 * 3 + 4 * 6 + 8 * 6;
+        if nodes == 0 || bytes.len() != 8 + nodes * NODE_BYTES + objects * 4 {
+            return Err("the ddo payload's length disagrees with its counts".into());
+        }
+        let mut tree = Octree {
+            nodes: Vec::with_capacity(nodes),
+            objects: Vec::with_capacity(objects),
+            masks32: Vec::with_capacity(nodes),
+            masks64: Vec::with_capacity(nodes),
+        };
+        for _ in 0..nodes {
+            let min = DVec3::new(r.f64()?, r.f64()?, r.f64()?);
+            let size = r.f64()?;
+            let node = Node {
+                min,
+                size,
+                children: r.u32()?,
+                objects: [r.u32()?, r.u32()?],
+            };
+            let children_fit = node.children == 0
+                || (node.children as usize > tree.nodes.len() && node.children as usize + 8 <= nodes);
+            let objects_fit = node.objects[0] <= node.objects[1] && node.objects[1] as usize <= objects;
+            if !(min.is_finite() && size.is_finite() && size > 0.0 && children_fit && objects_fit) {
+                return Err(format!("ddo node {} is malformed", tree.nodes.len()));
+            }
+            tree.nodes.push(node);
+            let mut m32 = [0u32; 6];
+            for m in &mut m32 {
+                *m = r.u32()?;
+            }
+            let mut m64 = [0u64; 6];
+            for m in &mut m64 {
+                *m = r.u64()?;
+            }
+            tree.masks32.push(m32);
+            tree.masks64.push(m64);
+        }
+        for _ in 0..objects {
+            let id = r.u32()?;
+            if id as usize >= scene.objects().len() {
+                return Err(format!("the ddo payload names object {id}, which the scene has not"));
+            }
+            tree.objects.push(id);
+        }
+        Ok(tree)
+    }
+}
+
+/// Little-endian reads from a payload.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N], String> {
+        let b = self
+            .bytes
+            .get(self.at..self.at + N)
+            .ok_or("the ddo payload ends early")?;
+        self.at += N;
+        Ok(b.try_into().expect("N bytes"))
+    }
+
+    fn u32(&mut self) -> Result<u32, String> {
+        self.take().map(u32::from_le_bytes)
+    }
+
+    fn u64(&mut self) -> Result<u64, String> {
+        self.take().map(u64::from_le_bytes)
+    }
+
+    fn f64(&mut self) -> Result<f64, String> {
+        self.take().map(f64::from_le_bytes)
+    }
+}
