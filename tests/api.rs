@@ -10,7 +10,7 @@ use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use common::{city_scene, fetch, shared_scene};
 use http_body_util::BodyExt;
-use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::cull::{MethodSpec, View, VisibleSet};
 use pvsd::geom::Camera;
 use pvsd::server::{AppState, Limits, app};
 use pvsd_proto::json::{ObjectInfo, SceneInfo, VisibleResponse};
@@ -94,7 +94,7 @@ async fn visible_matches_the_library() {
     for k in ["method", "cull_us", "nodes_tested", "in_frustum", "visible"] {
         assert!(body["stats"].get(k).is_some(), "stats.{k}");
     }
-    let methods = SceneMethods::prepare(city_scene(200, 3, [0.0; 3]));
+    let methods = common::prepare(city_scene(200, 3, [0.0; 3]));
     let cam = Camera {
         eye: glam::DVec3::new(0.0, 1.7, 0.0),
         forward: glam::DVec3::new(1.0, 0.0, 0.2),

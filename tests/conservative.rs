@@ -9,12 +9,13 @@ mod common;
 use std::sync::Arc;
 
 use common::{
-    check_conservative, checked_methods, city_scene, crowd_scene, office_scene, shared_scene,
+    cad_scene, check_conservative, checked_methods, city_scene, crowd_scene, office_scene,
+    shared_scene,
 };
 use pvsd::cull::frustum::FrustumCulling;
 use pvsd::cull::{
-    CullCounters, CullError, CullMethod, MethodContext, MethodEntry, MethodError, MethodOptions,
-    Occludees, Registry, SceneMethods, View, VisibleSet,
+    CullCounters, CullError, CullMethod, MethodEntry, MethodError, MethodOptions, Occludees,
+    Registry, SceneMethods, View, VisibleSet,
 };
 use pvsd::eval::{Contender, WalkKind};
 use pvsd::scene::Scene;
@@ -32,7 +33,7 @@ struct Row {
 /// The table's rows: the generated city and office (at the origin and at a
 /// 1e7 offset), a crowd whose movable half every method culls as dynamic
 /// occludees, and the real scenes.
-const ROWS: [Row; 8] = [
+const ROWS: [Row; 10] = [
     Row {
         name: "city_1k",
         scene: || city_scene(1000, 1, [0.0; 3]),
@@ -57,6 +58,16 @@ const ROWS: [Row; 8] = [
         name: "crowd",
         scene: || crowd_scene(1000, 3),
         walks: &[WalkKind::Street, WalkKind::Random],
+    },
+    Row {
+        name: "cad",
+        scene: || cad_scene(1, [0.0; 3]),
+        walks: &[WalkKind::Orbit],
+    },
+    Row {
+        name: "cad_at_1e7",
+        scene: || cad_scene(2, [1e7, 1e7, -1e7]),
+        walks: &[WalkKind::Orbit],
     },
     Row {
         name: "sponza",
@@ -84,8 +95,7 @@ fn check_table(
     scene: &Arc<Scene>,
     walks: &[WalkKind],
 ) -> Result<usize, String> {
-    let methods =
-        SceneMethods::prepare_with(scene.clone(), registry, &MethodContext::of_this_machine());
+    let methods = SceneMethods::prepare_with(scene.clone(), registry, &common::test_context());
     let variants = checked_methods(&methods, registry);
     for (label, method, options) in &variants {
         let cache = method.new_cache(options).unwrap();
@@ -142,6 +152,16 @@ fn crowd() {
 }
 
 #[test]
+fn cad() {
+    row("cad");
+}
+
+#[test]
+fn cad_at_1e7() {
+    row("cad_at_1e7");
+}
+
+#[test]
 fn sponza() {
     row("sponza");
 }
@@ -161,10 +181,7 @@ fn reciprocating_saw() {
 #[test]
 fn every_built_method_has_a_row() {
     let registry = Registry::standard();
-    let prepared: Vec<SceneMethods> = ROWS
-        .iter()
-        .map(|r| SceneMethods::prepare((r.scene)()))
-        .collect();
+    let prepared: Vec<SceneMethods> = ROWS.iter().map(|r| common::prepare((r.scene)())).collect();
     for entry in registry.entries() {
         let rows: Vec<&str> = ROWS
             .iter()

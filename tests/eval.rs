@@ -9,8 +9,8 @@ use std::sync::Arc;
 use common::{city_scene, office_scene, shared_scene};
 use glam::{DVec3, Vec3};
 use pvsd::cull::{
-    CullCounters, CullError, CullMethod, MethodError, MethodOptions, MethodSpec, Occludees,
-    SceneMethods, View, VisibleSet,
+    CullCounters, CullError, CullMethod, MethodError, MethodOptions, MethodSpec, Occludees, View,
+    VisibleSet,
 };
 use pvsd::eval::{Contender, EvalParams, WalkKind, WalkParams, evaluate, run, walk};
 use pvsd::geom::Camera;
@@ -81,7 +81,7 @@ fn tiny() -> Arc<Scene> {
 #[test]
 fn metrics_by_hand_on_a_tiny_scene() {
     let scene = tiny();
-    let methods = SceneMethods::prepare(scene.clone());
+    let methods = common::prepare(scene.clone());
     let cam = Camera {
         eye: DVec3::ZERO,
         forward: DVec3::NEG_Z,
@@ -146,7 +146,7 @@ fn metrics_by_hand_on_a_tiny_scene() {
 
 #[test]
 fn json_has_every_field_design_names() {
-    let methods = SceneMethods::prepare(city_scene(200, 1, [0.0; 3]));
+    let methods = common::prepare(city_scene(200, 1, [0.0; 3]));
     let params = EvalParams {
         walk: WalkParams {
             kind: WalkKind::Street,

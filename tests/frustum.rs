@@ -95,7 +95,7 @@ fn sampled_in_view() -> usize {
 }
 
 fn prepared(scene: Arc<Scene>) -> SceneMethods {
-    SceneMethods::prepare(scene)
+    common::prepare(scene)
 }
 
 #[test]

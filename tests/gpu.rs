@@ -21,9 +21,7 @@ use pvsd::cull::gpu::grid::Grid;
 use pvsd::cull::gpu::movers::Movers;
 use pvsd::cull::gpu::traversal::{Settings, Traversal};
 use pvsd::cull::gpu::vulkan::{Mask, QuerySource, Setup};
-use pvsd::cull::{
-    DeviceLimits, MethodContext, MethodSpec, Occludees, Registry, SceneMethods, View, VisibleSet,
-};
+use pvsd::cull::{DeviceLimits, MethodContext, MethodSpec, Occludees, Registry, View, VisibleSet};
 use pvsd::eval::{Contender, EvalParams, WalkKind, WalkParams};
 use pvsd::geom::Camera;
 use pvsd::scene::{Scene, SceneBuilder};
@@ -225,7 +223,7 @@ fn tiny_huge_and_degenerate_objects_at_extreme_cameras() {
     if gpu_or_skip("tiny_huge_and_degenerate_objects_at_extreme_cameras").is_none() {
         return;
     }
-    let methods = SceneMethods::prepare(common::scales_scene());
+    let methods = common::prepare(common::scales_scene());
     assert!(methods.names().contains(&"gpu"), "{:?}", methods.names());
     let registry = Registry::standard();
     let mut r = common::rng(5);
@@ -286,7 +284,7 @@ fn far_from_the_scene_origin_up_close() {
             false,
         );
     }
-    let methods = SceneMethods::prepare(Arc::new(b.finish()));
+    let methods = common::prepare(Arc::new(b.finish()));
     let registry = Registry::standard();
     let mut seen = Vec::new();
     let mut culled = 0;
@@ -332,7 +330,7 @@ fn options_are_checked_and_aggressive_ones_are_not_conservative() {
     else {
         return;
     };
-    let methods = SceneMethods::prepare(office_scene(1, [0.0; 3]));
+    let methods = common::prepare(office_scene(1, [0.0; 3]));
     let gpu = methods.get("gpu").unwrap();
     for (spec, conservative) in [
         ("gpu", true),
@@ -369,7 +367,7 @@ fn contribution_and_importance_culling_trade_pixels_for_a_smaller_set() {
         return;
     };
     let scene = common::city_scene(1000, 1, [0.0; 3]);
-    let methods = SceneMethods::prepare(scene.clone());
+    let methods = common::prepare(scene.clone());
     let params = EvalParams {
         walk: WalkParams {
             kind: WalkKind::Street,

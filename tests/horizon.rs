@@ -40,10 +40,7 @@ fn conservative_far_from_the_origin_and_the_same_answer() {
         let far = city_scene(300, 5, [offset, 0.0, -offset]);
         assert_conservative(&far, "horizon", &[WalkKind::Street], 15);
         // The same views, translated, give the same ids.
-        let (a, b) = (
-            SceneMethods::prepare(near.clone()),
-            SceneMethods::prepare(far.clone()),
-        );
+        let (a, b) = (common::prepare(near.clone()), common::prepare(far.clone()));
         let shift = DVec3::new(offset as f64, 0.0, -offset as f64);
         let params = pvsd::eval::WalkParams {
             kind: WalkKind::Street,
@@ -87,7 +84,7 @@ fn world_box(s: &Scene, id: u32) -> (DVec3, DVec3) {
 
 #[test]
 fn extremes_vertical_views_prism_faces_inside_buildings() {
-    let methods = SceneMethods::prepare(city_scene(400, 9, [0.0; 3]));
+    let methods = common::prepare(city_scene(400, 9, [0.0; 3]));
     let s = methods.scene().clone();
     let h = HorizonCulling::new(s.clone()).unwrap();
     let mut r = rng(3);
@@ -210,7 +207,7 @@ fn tall_thin_towers_hide_and_are_seen_correctly() {
             false,
         );
     }
-    let methods = SceneMethods::prepare(Arc::new(b.finish()));
+    let methods = common::prepare(Arc::new(b.finish()));
     let mut r = rng(8);
     let mut seen = Vec::new();
     for _ in 0..40 {
@@ -340,7 +337,7 @@ fn prisms_lie_inside_their_buildings() {
 
 #[test]
 fn lod_areas_bound_the_pixels_and_min_area_is_aggressive() {
-    let methods = SceneMethods::prepare(city_scene(1000, 3, [0.0; 3]));
+    let methods = common::prepare(city_scene(1000, 3, [0.0; 3]));
     let s = methods.scene().clone();
     let params = pvsd::eval::WalkParams {
         kind: WalkKind::Street,
@@ -377,7 +374,7 @@ fn lod_areas_bound_the_pixels_and_min_area_is_aggressive() {
 
 #[test]
 fn listed_only_for_height_fields_with_the_reason() {
-    let city = SceneMethods::prepare(city_scene(50, 1, [0.0; 3]));
+    let city = common::prepare(city_scene(50, 1, [0.0; 3]));
     assert!(city.names().contains(&"horizon"));
     assert!(city.get("horizon").is_ok());
     // The office's ground-floor walls are solids standing on the lowest
@@ -389,16 +386,13 @@ fn listed_only_for_height_fields_with_the_reason() {
             .find(|u| u.method == "horizon")
             .map(|u| u.reason.clone())
     };
-    if SceneMethods::prepare(office.clone())
-        .names()
-        .contains(&"horizon")
-    {
+    if common::prepare(office.clone()).names().contains(&"horizon") {
         assert_conservative(&office, "horizon", &[WalkKind::Random], 20);
     }
     // Real scenes: whatever is listed must be conservative; what is not says why.
     for name in ["Sponza", "2CylinderEngine", "ReciprocatingSaw"] {
         let scene = shared_scene(name);
-        let m = SceneMethods::prepare(scene.clone());
+        let m = common::prepare(scene.clone());
         if m.names().contains(&"horizon") {
             assert_conservative(&scene, "horizon", &[WalkKind::Orbit], 12);
         } else {
@@ -409,7 +403,7 @@ fn listed_only_for_height_fields_with_the_reason() {
 
 #[test]
 fn options_are_checked() {
-    let m = SceneMethods::prepare(city_scene(20, 1, [0.0; 3]));
+    let m = common::prepare(city_scene(20, 1, [0.0; 3]));
     for (spec, want) in [
         ("horizon:k=3", "unknown option 'k'"),
         ("horizon:min_area=-1", "min_area"),
@@ -455,7 +449,7 @@ fn a_mask_hides_below_its_top_and_not_above() {
         cuboid(Vec3::new(0.5, 0.0, 60.0), Vec3::new(1.5, 30.0, 61.0)),
         false,
     );
-    let methods = SceneMethods::prepare(Arc::new(b.finish()));
+    let methods = common::prepare(Arc::new(b.finish()));
     let cam = Camera {
         eye: DVec3::new(0.0, 1.7, 0.0),
         forward: DVec3::Z,

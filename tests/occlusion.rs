@@ -11,13 +11,13 @@ use common::{assert_seen, check_camera, office_scene, rng};
 use glam::{DVec3, Vec3};
 use pvsd::cull::occlusion::Visibility;
 use pvsd::cull::occlusion_tree::{LeafTest, OcclusionTree};
-use pvsd::cull::{MethodSpec, Registry, SceneMethods};
+use pvsd::cull::{MethodSpec, Registry};
 use pvsd::geom::{Aabb, Camera, ConvexPolygon};
 use rand::Rng;
 
 #[test]
 fn methods_are_listed_only_where_there_are_occluders() {
-    let office = SceneMethods::prepare(office_scene(1, [0.0; 3]));
+    let office = common::prepare(office_scene(1, [0.0; 3]));
     for m in ["frustum", "occlusion_tree", "supporting_planes"] {
         assert!(office.names().contains(&m), "{:?}", office.names());
     }
@@ -25,7 +25,7 @@ fn methods_are_listed_only_where_there_are_occluders() {
     let mut b = pvsd::scene::SceneBuilder::new("dust");
     b.begin_object("speck", None);
     b.add_triangles([[DVec3::ZERO, DVec3::X, DVec3::X * 2.0]], false);
-    let dust = SceneMethods::prepare(std::sync::Arc::new(b.finish()));
+    let dust = common::prepare(std::sync::Arc::new(b.finish()));
     // gpu needs no occluders, only a device.
     let names: Vec<&str> = dust.names().into_iter().filter(|&n| n != "gpu").collect();
     assert_eq!(names, ["frustum"]);
@@ -35,7 +35,7 @@ fn methods_are_listed_only_where_there_are_occluders() {
 
 #[test]
 fn options_are_checked_by_name() {
-    let office = SceneMethods::prepare(office_scene(1, [0.0; 3]));
+    let office = common::prepare(office_scene(1, [0.0; 3]));
     for (spec, want) in [
         (
             "occlusion_tree:variant=fxx",
@@ -59,7 +59,7 @@ fn options_are_checked_by_name() {
 
 #[test]
 fn extremes_eye_on_occluder_planes_edge_on_and_inside_walls() {
-    let methods = SceneMethods::prepare(office_scene(1, [0.0; 3]));
+    let methods = common::prepare(office_scene(1, [0.0; 3]));
     let registry = Registry::standard();
     let s = methods.scene().clone();
     let mut r = rng(11);

@@ -13,7 +13,7 @@ use common::server::{Held, Server, view_json, xpvs};
 use common::{city_scene, fetch};
 use futures_util::{SinkExt, StreamExt};
 use http_body_util::BodyExt;
-use pvsd::cull::{CullJob, MethodSpec, SceneMethods, View};
+use pvsd::cull::{CullJob, MethodSpec, View};
 use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::geom::Camera;
 use pvsd::scene::Scene;
@@ -203,7 +203,7 @@ async fn a_walk_by_deltas_holds_the_stateless_answers_over_http_and_websocket() 
 async fn every_method_rebuilds_its_own_answers_by_deltas() {
     let scene = city_scene(300, 5, [0.0; 3]);
     let cams = street(&scene, 30);
-    let library = SceneMethods::prepare(scene.clone());
+    let library = common::prepare(scene.clone());
     let names = library.names();
     assert!(names.len() >= 4, "{names:?}");
     let s = Server::with(vec![scene.clone()], Limits::default()).await;

@@ -12,7 +12,7 @@ use std::time::Duration;
 use common::server::{Server, view_json};
 use common::{CHECK_VIEWPORT, city_scene, cuboid, fetch};
 use glam::{DVec3, Vec3};
-use pvsd::cull::{CullJob, MethodSpec, SceneMethods, View};
+use pvsd::cull::{CullJob, MethodSpec, View};
 use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::geom::Camera;
 use pvsd::scene::{Scene, SceneBuilder};
@@ -54,7 +54,7 @@ fn camera(eye: [f64; 3], forward: [f64; 3]) -> Camera {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn users_see_each_other_in_the_open_not_behind_their_backs_or_a_wall() {
     let scene = yard();
-    let methods = SceneMethods::prepare(scene.clone()).names();
+    let methods = common::prepare(scene.clone()).names();
     assert!(
         methods.contains(&"horizon") && methods.contains(&"occlusion_tree"),
         "{methods:?}"
@@ -274,7 +274,7 @@ fn avatars_against_truth(offset: [f32; 3]) {
         );
     }
     let with_avatars = b.finish();
-    let library = SceneMethods::prepare(scene.clone());
+    let library = common::prepare(scene.clone());
     for name in library.names() {
         let spec: MethodSpec = name.parse().unwrap();
         let (method, cache) = library.prepare_client(&spec).unwrap();

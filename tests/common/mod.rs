@@ -24,6 +24,21 @@ pub fn shared_scene_path(name: &str) -> PathBuf {
         .join(format!("{name}.gltf"))
 }
 
+/// [`SceneMethods::prepare`] with the bakes kept in one folder under the
+/// build's scratch space: a scene file that several tests prepare (the
+/// shared scenes, a generated scene of the same bytes) is baked once.
+pub fn prepare(scene: Arc<Scene>) -> SceneMethods {
+    SceneMethods::prepare_with(scene, &Registry::standard(), &test_context())
+}
+
+/// This machine's context with the tests' bake folder ([`prepare`]).
+pub fn test_context() -> pvsd::cull::MethodContext {
+    pvsd::cull::MethodContext {
+        bake_dir: Some(Path::new(env!("CARGO_TARGET_TMPDIR")).join("bakes")),
+        ..pvsd::cull::MethodContext::of_this_machine()
+    }
+}
+
 /// Loads a shared scene; fails the test loudly if `../shared` is missing.
 pub fn shared_scene(name: &str) -> Arc<Scene> {
     let path = shared_scene_path(name);
@@ -39,6 +54,18 @@ pub fn city_scene(buildings: u32, seed: u64, offset: [f32; 3]) -> Arc<Scene> {
         ..CityOptions::default()
     });
     Arc::new(load_slice("city", &doc.to_glb(), None, Path::new("city.glb")).unwrap())
+}
+
+/// A generated CAD body (a closed skin with windows around dense parts),
+/// smaller than the default, written to glb bytes and loaded back.
+pub fn cad_scene(seed: u64, offset: [f32; 3]) -> Arc<Scene> {
+    let doc = pvsd::scene::generate::cad(&pvsd::scene::generate::CadOptions {
+        seed,
+        cells: 24,
+        parts: 80,
+        offset,
+    });
+    Arc::new(load_slice("cad", &doc.to_glb(), None, Path::new("cad.glb")).unwrap())
 }
 
 /// A generated crowd (half its things movable), written to glb bytes and
@@ -181,7 +208,7 @@ pub fn check_conservative(
 /// [`check_conservative`] for one method named by its spec (`frustum`, `occlusion_tree:k=32`).
 pub fn assert_conservative(scene: &Arc<Scene>, method: &str, walks: &[WalkKind], frames: usize) {
     let spec: MethodSpec = method.parse().unwrap();
-    let methods = SceneMethods::prepare(scene.clone());
+    let methods = prepare(scene.clone());
     check_conservative(&methods, walks, frames, |m| {
         vec![Contender::from_spec(m, &spec).unwrap()]
     })

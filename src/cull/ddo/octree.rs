@@ -191,12 +191,14 @@ impl Skeleton {
         &self.triangles[a as usize..b as usize]
     }
 
-    /// Calls `visit` with every leaf whose cube touches the box `[lo, hi]`.
-    pub fn leaves_touching(&self, lo: DVec3, hi: DVec3, mut visit: impl FnMut(usize)) {
+    /// Calls `visit` with every leaf whose cube, grown by `grow`, segment
+    /// `p q` may meet.
+    pub fn leaves_along(&self, p: DVec3, q: DVec3, grow: f64, mut visit: impl FnMut(usize)) {
         let mut stack = vec![0usize];
+        let g = DVec3::splat(grow);
         while let Some(n) = stack.pop() {
             let node = &self.nodes[n];
-            if node.min.cmpgt(hi).any() || node.max().cmplt(lo).any() {
+            if !segment_meets_box(p, q, node.min - g, node.max() + g) {
                 continue;
             }
             if node.is_leaf() {
@@ -324,6 +326,26 @@ impl Octree {
         }
         Ok(tree)
     }
+}
+
+/// Whether segment `p q` may meet the box `[lo, hi]` (slab clipping; a
+/// caller that must not miss a meeting grows the box by a margin far
+/// above the rounding here).
+pub fn segment_meets_box(p: DVec3, q: DVec3, lo: DVec3, hi: DVec3) -> bool {
+    let d = q - p;
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if p[k] < lo[k] || p[k] > hi[k] {
+                return false;
+            }
+            continue;
+        }
+        let (a, b) = ((lo[k] - p[k]) / d[k], (hi[k] - p[k]) / d[k]);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    t0 <= t1 + 1e-9
 }
 
 /// Little-endian reads from a payload.

@@ -49,7 +49,7 @@
 use glam::DVec3;
 use robust::{Coord3D, orient3d};
 
-use super::octree::Skeleton;
+use super::octree::{Skeleton, segment_meets_box};
 use super::regions::Regions;
 
 /// The eyes of a region are widened by this much in slope.
@@ -352,25 +352,6 @@ fn triangle_meets_box(q: &[DVec3; 3], lo: DVec3, hi: DVec3) -> bool {
     true
 }
 
-/// Whether segment `p q` may meet the box `[lo, hi]` (slab clipping; the
-/// caller grows the box by a margin far above the rounding here).
-fn segment_meets_box(p: DVec3, q: DVec3, lo: DVec3, hi: DVec3) -> bool {
-    let d = q - p;
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for k in 0..3 {
-        if d[k] == 0.0 {
-            if p[k] < lo[k] || p[k] > hi[k] {
-                return false;
-            }
-            continue;
-        }
-        let (a, b) = ((lo[k] - p[k]) / d[k], (hi[k] - p[k]) / d[k]);
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
-    }
-    t0 <= t1 + 1e-9
-}
-
 /// How a segment meets a triangle, decided exactly.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Crossing {
@@ -497,15 +478,14 @@ impl Validator<'_> {
             s.stamp = u32::MAX;
         }
         let stamp = s.next_stamp();
-        // Every triangle that can cross the segment is in a leaf touching its box.
+        // Every triangle that can cross the segment is in a leaf it meets.
         let grow = DVec3::splat(v.m);
-        let (lo, hi) = (top.min(bottom) - grow, top.max(bottom) + grow);
         s.candidates.clear();
         let candidates = &mut s.candidates;
         let crossing_marks = &mut s.crossing;
         let visited = &mut s.visited;
         let mut degenerate = false;
-        self.index.leaves_touching(lo, hi, |leaf| {
+        self.index.leaves_along(top, bottom, v.m, |leaf| {
             for &t in self.index.leaf_triangles(leaf) {
                 // See-through triangles (numbered after the opaque ones)
                 // hide nothing; `visited` doubles as "already tested".
