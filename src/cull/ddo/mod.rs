@@ -87,7 +87,7 @@ const CELLS: Ranged<usize> = Ranged {
 /// (the paper's), taking every face.
 const PLANES: &str = "planes";
 
-const OPTIONS: [&str; 4] = [REGIONS, MAP, CELLS.key, PLANES];
+const OPTIONS: [&str; 5] = [REGIONS, MAP, CELLS.key, PLANES, SPLITS.key];
 
 /// Projected depths below this share of the scene's size (plus the eye's
 /// distance from its origin) are not projected: far above the rounding of
@@ -100,8 +100,15 @@ const DEPTH_FLOOR: f64 = 1e-6;
 const DIRECTION_FLOOR: f64 = 1e-6;
 
 /// How many times a node's cone of directions is quartered when no one
-/// map hides it whole.
-const SPLITS: u32 = 1;
+/// map hides it whole (by default never: measured, it costs more than it
+/// hides).
+const SPLITS: Ranged<u32> = Ranged {
+    key: "splits",
+    noun: "a whole number",
+    default: 0,
+    min: 0,
+    max: 4,
+};
 
 /// When the frustum reaches the map plane's horizon, the map spans this
 /// window (±89° from the axis); rectangles leaving it are never hidden.
@@ -116,7 +123,7 @@ const NEAR_SLACK: f64 = 1e-6;
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "ddo",
     purpose: "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
-    checked_with: &["regions=32", "map=grid:cells=16"],
+    checked_with: &["regions=32", "map=grid:cells=16", "splits=2"],
     build,
 };
 
@@ -159,6 +166,8 @@ pub struct DdoState {
     regions: Regions,
     /// Only the plane most facing the view has a map (the paper's choice).
     best_plane: bool,
+    /// How often a node's cone is quartered ([`SPLITS`]).
+    splits: u32,
     /// One map per coordinate plane and direction ([`MapPlane::index`]).
     maps: [OcclusionMap; 6],
     /// The frame each object was last reported in.
@@ -183,6 +192,7 @@ impl CullMethod for DdoCulling {
             _ => Regions::R64,
         };
         let best_plane = r.choice(PLANES, &["all", "best"])? == "best";
+        let splits = r.ranged(&SPLITS)?;
         let cells = r.ranged(&CELLS)?;
         let grid = r.choice(MAP, &["exact", "grid"])? == "grid";
         r.finish()?;
@@ -196,6 +206,7 @@ impl CullMethod for DdoCulling {
         Ok(DdoState {
             regions,
             best_plane,
+            splits,
             maps: std::array::from_fn(|_| map()),
             seen: vec![0; self.scene.objects().len()],
             frame: 0,
@@ -493,15 +504,30 @@ impl Walk<'_> {
     }
 
     /// Whether every ray from the eye to the node passes through an
-    /// occluder of some map: the node's rectangle on a plane it projects
-    /// onto (the view's best, else another) is a cone of directions, tested
-    /// whole against every map (each seeing it as the rectangle around its
-    /// four edges' images), then in quarters, down to [`SPLITS`] levels,
-    /// so that a node seen past an edge or a corner of the surfaces in
-    /// front, partly through faces of one plane and partly of another, can
-    /// still be hidden.
+    /// occluder of some map: first the node's own rectangle on each map;
+    /// then its rectangle on a plane it projects onto (the view's best,
+    /// else another) as a cone of directions, in quarters down to
+    /// `splits` levels ([`SPLITS`]), each tested against every map (which
+    /// sees it as the rectangle around its four edges' images), so that a
+    /// node seen past an edge or a corner of the surfaces in front, partly
+    /// through faces of one plane and partly of another, can still be
+    /// hidden.
     fn hidden(&mut self, node: &Node) -> bool {
         if self.state.maps.iter().all(OcclusionMap::is_empty) {
+            return false;
+        }
+        for m in 0..6 {
+            let map = &mut self.state.maps[m];
+            if !map.is_empty()
+                && self
+                    .projection
+                    .node_rect(MapPlane::of_index(m), node)
+                    .is_some_and(|r| map.hides(r))
+            {
+                return true;
+            }
+        }
+        if self.state.splits == 0 {
             return false;
         }
         let best = self.projection.best;
@@ -509,9 +535,22 @@ impl Walk<'_> {
             .chain((0..6).map(MapPlane::of_index))
             .find_map(|plane| Some((plane, self.projection.node_rect(plane, node)?)));
         match base {
-            Some((plane, r)) => self.covered(plane, r, 0),
+            Some((plane, r)) => self.quartered(plane, r, 1),
             None => false,
         }
+    }
+
+    /// Whether each quarter of the cone `r` is [`Walk::covered`].
+    fn quartered(&mut self, plane: MapPlane, r: Rect, depth: u32) -> bool {
+        let mid = (r.lo + r.hi) * 0.5;
+        (0..4).all(|q| {
+            let (x, y) = (q & 1 == 1, q & 2 == 2);
+            let quarter = Rect {
+                lo: DVec2::new(if x { mid.x } else { r.lo.x }, if y { mid.y } else { r.lo.y }),
+                hi: DVec2::new(if x { r.hi.x } else { mid.x }, if y { r.hi.y } else { mid.y }),
+            };
+            self.covered(plane, quarter, depth)
+        })
     }
 
     /// Whether every direction of the cone `r` (on `plane`'s map) passes
@@ -530,18 +569,7 @@ impl Walk<'_> {
                 return true;
             }
         }
-        if depth == SPLITS {
-            return false;
-        }
-        let mid = (r.lo + r.hi) * 0.5;
-        (0..4).all(|q| {
-            let (x, y) = (q & 1 == 1, q & 2 == 2);
-            let quarter = Rect {
-                lo: DVec2::new(if x { mid.x } else { r.lo.x }, if y { mid.y } else { r.lo.y }),
-                hi: DVec2::new(if x { r.hi.x } else { mid.x }, if y { r.hi.y } else { mid.y }),
-            };
-            self.covered(plane, quarter, depth + 1)
-        })
+        depth < self.state.splits && self.quartered(plane, r, depth + 1)
     }
 
     /// Adds the faces of node `n` that are valid occluders from the eye.
