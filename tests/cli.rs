@@ -381,3 +381,123 @@ fn a_killed_bake_leaves_nothing_that_loads_wrong() {
         assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
     }
 }
+
+/// The ddo bake through `pvsd bake` on a small CAD body: made once and
+/// loaded after; a flipped byte is refused by its checksum and the bake
+/// made again; a scene file changed by one byte gets a bake of its own;
+/// two bakers at once and a baker killed mid-way leave only whole bakes.
+#[test]
+fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("cad.glb");
+    let scene_arg = scene.to_string_lossy().into_owned();
+    let (ok, _, err) = run(&[
+        "gen", "cad", "--cells", "12", "--parts", "20", "-o", &scene_arg,
+    ]);
+    assert!(ok, "{err}");
+    let bakes = dir.path().join("bakes");
+    let bakes_arg = bakes.to_string_lossy().into_owned();
+    let args = ["bake", "--scene", &scene_arg, "--bake-dir", &bakes_arg];
+    let ddo_lines = |log: &str| -> Vec<String> {
+        log.lines()
+            .filter(|l| l.contains("\"ddo\""))
+            .map(String::from)
+            .collect()
+    };
+    let (ok, out, err) = run(&args);
+    assert!(
+        ok && out.contains("ddo"),
+        "ddo is among the methods: {out}{err}"
+    );
+    assert!(
+        ddo_lines(&err).iter().any(|l| l.contains("none yet")),
+        "{err}"
+    );
+    let (_, _, err) = run(&args);
+    assert!(
+        ddo_lines(&err).iter().any(|l| l.contains("loaded a bake")),
+        "{err}"
+    );
+
+    // One flipped byte in the ddo bake.
+    let ddo_file = || {
+        std::fs::read_dir(&bakes)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.to_string_lossy().contains("-ddo-"))
+            .expect("a ddo bake")
+    };
+    let file = ddo_file();
+    let mut bytes = std::fs::read(&file).unwrap();
+    let middle = bytes.len() / 2;
+    bytes[middle] ^= 0x10;
+    std::fs::write(&file, bytes).unwrap();
+    let (ok, _, err) = run(&args);
+    assert!(ok);
+    assert!(
+        ddo_lines(&err).iter().any(|l| l.contains("checksum")),
+        "{err}"
+    );
+    let (_, _, err) = run(&args);
+    assert!(
+        ddo_lines(&err).iter().any(|l| l.contains("loaded a bake")),
+        "{err}"
+    );
+
+    // The scene changed by one byte (a name's last letter): a new bake.
+    let mut glb = std::fs::read(&scene).unwrap();
+    let at = glb
+        .windows(9)
+        .position(|w| w == b"part_0001")
+        .expect("a part's name");
+    glb[at + 8] = b'9';
+    std::fs::write(&scene, glb).unwrap();
+    let (ok, _, err) = run(&args);
+    assert!(ok, "{err}");
+    assert!(
+        ddo_lines(&err).iter().any(|l| l.contains("none yet")),
+        "{err}"
+    );
+
+    // Two bakers at once, then one killed early: every bake whole.
+    std::fs::remove_dir_all(&bakes).unwrap();
+    let spawn = || {
+        pvsd()
+            .args(args)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap()
+    };
+    let two = [spawn(), spawn()];
+    for mut c in two {
+        assert!(c.wait().unwrap().success());
+    }
+    let names: Vec<String> = std::fs::read_dir(&bakes)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| n.ends_with(".bake")),
+        "leftovers: {names:?}"
+    );
+    // A baker killed mid-way may leave its temporary file, never a bake
+    // that loads wrong: the next run loads a whole one or makes it.
+    std::fs::remove_dir_all(&bakes).unwrap();
+    let mut killed = spawn();
+    std::thread::sleep(Duration::from_millis(400));
+    let _ = killed.kill();
+    let _ = killed.wait();
+    let (ok, _, err) = run(&args);
+    assert!(ok, "{err}");
+    assert!(
+        ddo_lines(&err)
+            .iter()
+            .any(|l| l.contains("loaded a bake") || l.contains("none yet")),
+        "{err}"
+    );
+    assert!(
+        !err.contains("checksum") && !err.contains("truncated"),
+        "{err}"
+    );
+}
