@@ -216,6 +216,18 @@ impl RectUnion {
         self.stack = stack;
     }
 
+    /// Whether the part holding `p` is empty.
+    fn empty_at(&self, p: DVec2) -> bool {
+        let mut i = 0u32;
+        loop {
+            match self.parts[i as usize] {
+                Part::Full => return false,
+                Part::Empty => return true,
+                Part::Split { axis, at, lo, hi } => i = if p[axis] < at { lo } else { hi },
+            }
+        }
+    }
+
     /// Whether every point of `r`, grown by the slack, lies inside the window and the union.
     pub fn hides(&mut self, r: Rect) -> bool {
         let Some(window) = self.window else {
@@ -226,6 +238,13 @@ impl RectUnion {
         }
         let r = r.slackened(SLACK);
         if !(r.lo.cmpge(window.lo).all() && r.hi.cmple(window.hi).all()) {
+            return false;
+        }
+        // Most queries are of visible nodes: a point of the rectangle in an
+        // empty part says so after one path down, before the whole search.
+        let centre = (r.lo + r.hi) * 0.5;
+        let probes = [centre, r.lo, r.hi, DVec2::new(r.lo.x, r.hi.y), DVec2::new(r.hi.x, r.lo.y)];
+        if probes.iter().any(|&p| self.empty_at(p)) {
             return false;
         }
         let mut stack = std::mem::take(&mut self.stack);
