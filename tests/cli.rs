@@ -312,6 +312,18 @@ fn bake_makes_the_bakes_and_reuses_them() {
     assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
 }
 
+/// Every file in the bake folder `dir` is a bake: no temporary file left.
+fn assert_only_whole_bakes(dir: &std::path::Path) {
+    let names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| n.ends_with(".bake")),
+        "leftovers: {names:?}"
+    );
+}
+
 /// Two bakers at once on one folder (two servers starting together): both
 /// finish, and what they leave loads.
 #[test]
@@ -335,14 +347,7 @@ fn two_bakers_at_once_leave_whole_bakes() {
     let (ok, _, err) = run(&args);
     assert!(ok);
     assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
-    let names: Vec<String> = std::fs::read_dir(&bakes)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    assert!(
-        names.iter().all(|n| n.ends_with(".bake")),
-        "leftovers: {names:?}"
-    );
+    assert_only_whole_bakes(&bakes);
 }
 
 /// A bake killed at any moment (SIGKILL) leaves nothing that loads wrong:
@@ -398,26 +403,19 @@ fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
     let bakes = dir.path().join("bakes");
     let bakes_arg = bakes.to_string_lossy().into_owned();
     let args = ["bake", "--scene", &scene_arg, "--bake-dir", &bakes_arg];
-    let ddo_lines = |log: &str| -> Vec<String> {
+    // Whether the log has a line about the ddo bake saying `what`.
+    let ddo_says = |log: &str, what: &str| {
         log.lines()
-            .filter(|l| l.contains("\"ddo\""))
-            .map(String::from)
-            .collect()
+            .any(|l| l.contains("\"ddo\"") && l.contains(what))
     };
     let (ok, out, err) = run(&args);
     assert!(
         ok && out.contains("ddo"),
         "ddo is among the methods: {out}{err}"
     );
-    assert!(
-        ddo_lines(&err).iter().any(|l| l.contains("none yet")),
-        "{err}"
-    );
+    assert!(ddo_says(&err, "none yet"), "{err}");
     let (_, _, err) = run(&args);
-    assert!(
-        ddo_lines(&err).iter().any(|l| l.contains("loaded a bake")),
-        "{err}"
-    );
+    assert!(ddo_says(&err, "loaded a bake"), "{err}");
 
     // One flipped byte in the ddo bake.
     let ddo_file = || {
@@ -434,15 +432,9 @@ fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
     std::fs::write(&file, bytes).unwrap();
     let (ok, _, err) = run(&args);
     assert!(ok);
-    assert!(
-        ddo_lines(&err).iter().any(|l| l.contains("checksum")),
-        "{err}"
-    );
+    assert!(ddo_says(&err, "checksum"), "{err}");
     let (_, _, err) = run(&args);
-    assert!(
-        ddo_lines(&err).iter().any(|l| l.contains("loaded a bake")),
-        "{err}"
-    );
+    assert!(ddo_says(&err, "loaded a bake"), "{err}");
 
     // The scene changed by one byte (a name's last letter): a new bake.
     let mut glb = std::fs::read(&scene).unwrap();
@@ -454,10 +446,7 @@ fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
     std::fs::write(&scene, glb).unwrap();
     let (ok, _, err) = run(&args);
     assert!(ok, "{err}");
-    assert!(
-        ddo_lines(&err).iter().any(|l| l.contains("none yet")),
-        "{err}"
-    );
+    assert!(ddo_says(&err, "none yet"), "{err}");
 
     // Two bakers at once, then one killed early: every bake whole.
     std::fs::remove_dir_all(&bakes).unwrap();
@@ -473,14 +462,7 @@ fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
     for mut c in two {
         assert!(c.wait().unwrap().success());
     }
-    let names: Vec<String> = std::fs::read_dir(&bakes)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
-    assert!(
-        names.iter().all(|n| n.ends_with(".bake")),
-        "leftovers: {names:?}"
-    );
+    assert_only_whole_bakes(&bakes);
     // A baker killed mid-way may leave its temporary file, never a bake
     // that loads wrong: the next run loads a whole one or makes it.
     std::fs::remove_dir_all(&bakes).unwrap();
@@ -491,9 +473,7 @@ fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
     let (ok, _, err) = run(&args);
     assert!(ok, "{err}");
     assert!(
-        ddo_lines(&err)
-            .iter()
-            .any(|l| l.contains("loaded a bake") || l.contains("none yet")),
+        ddo_says(&err, "loaded a bake") || ddo_says(&err, "none yet"),
         "{err}"
     );
     assert!(
