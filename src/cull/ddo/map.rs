@@ -127,28 +127,77 @@ enum Part {
 
 /// The exact union of rectangles: a partition of the window, cut at their
 /// edges, into empty and full parts.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct RectUnion {
     parts: Vec<Part>,
     window: Option<Rect>,
     stack: Vec<(u32, Rect)>,
+    /// The window's boundaries between buckets, per axis: bucket `(i, j)`
+    /// is the root of its own partition (part `j × BUCKETS + i`), so a
+    /// path down is as deep as the cuts inside one bucket, not the window.
+    edges: Box<[[f64; BUCKETS + 1]; 2]>,
+    added: bool,
 }
+
+/// Buckets along each axis of the window.
+const BUCKETS: usize = 16;
 
 /// Parts beyond this many are not made: later rectangles are dropped
 /// (hiding less), which bounds a view's work whatever it adds.
 const MAX_PARTS: usize = 1 << 18;
 
+impl Default for RectUnion {
+    fn default() -> Self {
+        RectUnion {
+            parts: Vec::new(),
+            window: None,
+            stack: Vec::new(),
+            edges: Box::new([[0.0; BUCKETS + 1]; 2]),
+            added: false,
+        }
+    }
+}
+
 impl RectUnion {
     /// Clears the union and sets its window.
     pub fn reset(&mut self, window: Rect) {
         self.parts.clear();
-        self.parts.push(Part::Empty);
+        self.parts.resize(BUCKETS * BUCKETS, Part::Empty);
+        for (axis, edges) in self.edges.iter_mut().enumerate() {
+            let (lo, hi) = (window.lo[axis], window.hi[axis]);
+            for (k, e) in edges.iter_mut().enumerate() {
+                *e = lo + (hi - lo) * k as f64 / BUCKETS as f64;
+            }
+            edges[BUCKETS] = hi;
+        }
         self.window = Some(window);
+        self.added = false;
     }
 
     /// Whether nothing was added since the reset.
     pub fn is_empty(&self) -> bool {
-        self.parts.len() <= 1 && !matches!(self.parts.first(), Some(Part::Full))
+        !self.added
+    }
+
+    /// The buckets `[first, end)` along `axis` that `r` overlaps with
+    /// positive length.
+    fn buckets(&self, r: Rect, axis: usize) -> (usize, usize) {
+        let e = &self.edges[axis];
+        let first = e[1..].partition_point(|&x| x <= r.lo[axis]);
+        let end = e[..BUCKETS].partition_point(|&x| x < r.hi[axis]);
+        (first, end)
+    }
+
+    /// Bucket `(i, j)`'s root part and region.
+    fn bucket(&self, i: usize, j: usize) -> (u32, Rect) {
+        let [x, y] = &*self.edges;
+        (
+            (j * BUCKETS + i) as u32,
+            Rect {
+                lo: DVec2::new(x[i], y[j]),
+                hi: DVec2::new(x[i + 1], y[j + 1]),
+            },
+        )
     }
 
     /// Adds `r` (its part inside the window).
@@ -161,9 +210,15 @@ impl RectUnion {
         if !(r.lo.x < r.hi.x && r.lo.y < r.hi.y) {
             return;
         }
+        self.added = true;
+        let ((x0, x1), (y0, y1)) = (self.buckets(r, 0), self.buckets(r, 1));
         let mut stack = std::mem::take(&mut self.stack);
         stack.clear();
-        stack.push((0, window));
+        for j in y0..y1 {
+            for i in x0..x1 {
+                stack.push(self.bucket(i, j));
+            }
+        }
         while let Some((i, region)) = stack.pop() {
             match self.parts[i as usize] {
                 Part::Full => {}
@@ -216,9 +271,14 @@ impl RectUnion {
         self.stack = stack;
     }
 
-    /// Whether the part holding `p` is empty.
+    /// Whether the part holding `p` (a point of the window) is empty.
     fn empty_at(&self, p: DVec2) -> bool {
-        let mut i = 0u32;
+        let bucket = |axis: usize| {
+            self.edges[axis][1..]
+                .partition_point(|&x| x <= p[axis])
+                .min(BUCKETS - 1)
+        };
+        let mut i = self.bucket(bucket(0), bucket(1)).0;
         loop {
             match self.parts[i as usize] {
                 Part::Full => return false,
@@ -247,9 +307,14 @@ impl RectUnion {
         if probes.iter().any(|&p| self.empty_at(p)) {
             return false;
         }
+        let ((x0, x1), (y0, y1)) = (self.buckets(r, 0), self.buckets(r, 1));
         let mut stack = std::mem::take(&mut self.stack);
         stack.clear();
-        stack.push((0, window));
+        for j in y0..y1 {
+            for i in x0..x1 {
+                stack.push(self.bucket(i, j));
+            }
+        }
         let mut hidden = true;
         while let Some((i, region)) = stack.pop() {
             match self.parts[i as usize] {

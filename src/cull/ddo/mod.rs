@@ -64,7 +64,7 @@ use super::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
-use crate::geom::{ALL_PLANES, PlaneMask, Side};
+use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
 use crate::scene::{BakeCache, Scene};
 
 /// `regions=32|64`: which of the baked masks is used.
@@ -238,8 +238,9 @@ impl CullMethod for DdoCulling {
             state.frame = 1;
         }
         let projection = Projection::of(view, &self.scene);
+        let content = self.scene.bounds();
         for (m, map) in state.maps.iter_mut().enumerate() {
-            map.reset(projection.window(MapPlane::of_index(m), view));
+            map.reset(projection.window(MapPlane::of_index(m), view, &content));
         }
         state.pending.clear();
         let mut walk = Walk {
@@ -331,9 +332,21 @@ impl Projection {
         ))
     }
 
-    /// The window of `plane`'s map: the frustum's projection when every
-    /// corner of it is deep enough, else the wide window.
-    fn window(&self, plane: MapPlane, view: &View) -> Rect {
+    /// The window of `plane`'s map: where the scene's box projects, when
+    /// all of it is deep enough (the faces and nodes that matter lie
+    /// inside it; a rectangle reaching outside is clipped, or not hidden),
+    /// else the frustum's projection when every corner of that is deep
+    /// enough, else the wide window.
+    fn window(&self, plane: MapPlane, view: &View, content: &Aabb) -> Rect {
+        let corners = content.corners().map(|c| self.project(plane, c.as_dvec3()));
+        if let Some(points) = corners.into_iter().collect::<Option<Vec<DVec2>>>() {
+            let r = Rect::around(points);
+            let pad = (r.hi - r.lo) * 1e-3 + DVec2::splat(1e-9);
+            return Rect {
+                lo: r.lo - pad,
+                hi: r.hi + pad,
+            };
+        }
         let corners = view.frustum().corners();
         let projected: Option<Vec<DVec2>> =
             corners.iter().map(|&c| self.project(plane, c)).collect();
