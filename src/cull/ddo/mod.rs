@@ -749,6 +749,38 @@ mod tests {
     }
 
     #[test]
+    fn an_eye_on_the_octree_planes_still_gets_every_visible_object() {
+        // Rays within a splitting plane through the eye have no front-to-back
+        // order (faces found inside such a node wait until it is done):
+        // every truth-visible object is kept, with and without a hole.
+        for hole in [None, Some((8, 8))] {
+            let scene = boxed_scene(hole);
+            let method = baked(&scene);
+            let centre = method.octree().nodes()[0].centre();
+            for eye in [
+                DVec3::new(centre.x, centre.y, 5.0),
+                DVec3::new(centre.x, 0.03, 4.0),
+                DVec3::new(0.05, centre.y, 3.0),
+            ] {
+                let camera = Camera {
+                    eye,
+                    forward: -eye,
+                    ..Camera::default()
+                };
+                let truth = crate::truth::Truth::render(&scene, &camera).expect("a camera");
+                let visible = truth.visible();
+                assert!(!visible.is_empty());
+                for options in ["", "planes=best", "splits=2"] {
+                    let got = cull(&method, eye, options);
+                    for v in &visible {
+                        assert!(got.contains(v), "{v} from {eye} with {options:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn a_hole_in_the_shell_shows_what_it_holds() {
         // Cell (8, 8) of the +z face spans [0, 0.125]²: the inner box is
         // seen through it from straight above.
