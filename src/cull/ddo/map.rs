@@ -2,9 +2,9 @@
 //! rectangles seen so far, on a coordinate plane, queried with a node's
 //! bounding rectangle. Two forms, as the paper measured:
 //!
-//! - [`RectUnion`] (the default, `map=exact`): the union kept exactly, as a
-//!   binary partition of the window cut only at rectangle edges, each part
-//!   empty or full. Faces of neighbouring nodes in one plane share their
+//! - [`RectUnion`] (the default, `map=exact`): the union kept exactly, as
+//!   16 × 16 buckets of the window, each a binary partition cut only at
+//!   rectangle edges, each part empty or full. Faces of neighbouring nodes in one plane share their
 //!   edges' coordinates bit for bit, so their union has no seam.
 //! - [`CellGrid`] (`map=grid`): a uniform grid, a row of cells a few machine
 //!   words, so a rectangle costs one mask per row; a cell is marked only
