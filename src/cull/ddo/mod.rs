@@ -11,22 +11,26 @@
 //!
 //! At run time (§4, Fig. 7) the octree is walked front to back (the eye's
 //! octant first, then by the eye's side of each splitting plane). A node
-//! outside the frustum is dropped; one whose bounding rectangle on the
-//! occlusion map lies inside the union of occluder rectangles is hidden; a
-//! visible leaf reports its objects (each one whose box touches the
-//! frustum). When a node is done, each of its faces that the node lies
-//! between the eye and (the eye at least the node's size away) and whose
-//! mask has the eye's region is added to the map.
+//! outside the frustum is dropped; one whose bounding rectangle on an
+//! occlusion map lies inside the union of occluder rectangles there is
+//! hidden; a visible leaf reports its objects (each one whose box touches
+//! the frustum). When a node is done, each of its faces that the node lies
+//! between the eye and (the eye at least [`CLIP`] node sizes away) and
+//! whose mask has the eye's region is added to a map.
 //!
-//! **The map's plane** (§4.2) is the coordinate plane most facing the
-//! view: points are projected from the eye onto `z = 1`, `z` being the
-//! distance along the axis nearest the view direction. Only points with
-//! `z` at least a small positive share of the scene's size are projected:
+//! **The maps' planes** (§4.2). The paper projects onto the coordinate
+//! plane most facing the view (`planes=best`): points are projected from
+//! the eye onto `z = 1`, `z` being the distance along that axis, and a
+//! face perpendicular to the plane projects to a trapezoid, of which the
+//! largest axis-aligned rectangle inside is added. By default
+//! (`planes=all`) there is a map per coordinate plane and direction, each
+//! taking the faces parallel to it as exact rectangles, and a node is
+//! hidden when one map hides it (or, with `splits`, when each quarter of
+//! its cone of directions is hidden by some map). Only points at a depth
+//! of at least a small positive share of the scene's size are projected:
 //! a node reaching nearer (beside or behind the plane through the eye, or
-//! across the near plane) is never tested against the map, only against
-//! the frustum, and an occluder face is cut to its part beyond that depth.
-//! A face perpendicular to the plane projects to a trapezoid, of which
-//! the largest axis-aligned rectangle inside is added.
+//! across the near plane) is never hidden by that map, and an occluder
+//! face is cut to its part beyond that depth.
 //!
 //! **Why a hidden node is hidden.** A node is tested after every node that
 //! added an occluder: those precede it in a front-to-back order, so along
@@ -37,11 +41,11 @@
 //! behind the opaque triangles that the bake proved to hide the face. When
 //! the eye lies exactly on a splitting plane, rays within that plane have
 //! no such order: faces added inside that node's subtree wait until the
-//! node is done. Those triangles lie between the face and the plane
-//! `t = H` of the face's frame, so along the ray at least `1 − s/h` of the
-//! way to the face (the eye `h ≥ s` away); a face is only used when that
-//! share of its nearest view depth is beyond the near plane, so no
-//! triangle the near plane clips away is relied on.
+//! node is done. The hiding triangles lie between the face and the plane
+//! `t = H < 2s` of the face's frame, so along the ray at least `1 − 2s/h`
+//! of the way to the face (the eye `h ≥ 2s` away); a face is only used
+//! when that share of its nearest view depth is beyond the near plane, so
+//! no triangle the near plane clips away is relied on.
 
 mod bake;
 mod map;
