@@ -342,22 +342,13 @@ impl Projection {
     /// else the frustum's projection when every corner of that is deep
     /// enough, else the wide window.
     fn window(&self, plane: MapPlane, view: &View, content: &Aabb) -> Rect {
-        let corners = content.corners().map(|c| self.project(plane, c.as_dvec3()));
-        if let Some(points) = corners.into_iter().collect::<Option<Vec<DVec2>>>() {
-            let r = Rect::around(points);
-            let pad = (r.hi - r.lo) * 1e-3 + DVec2::splat(1e-9);
-            return Rect {
-                lo: r.lo - pad,
-                hi: r.hi + pad,
-            };
-        }
-        let corners = view.frustum().corners();
-        let projected: Option<Vec<DVec2>> =
-            corners.iter().map(|&c| self.project(plane, c)).collect();
+        let content = content.corners().map(|c| c.as_dvec3());
+        let projected = self
+            .around(plane, content)
+            .or_else(|| self.around(plane, *view.frustum().corners()));
         match projected {
-            Some(points) => {
-                let r = Rect::around(points);
-                let pad = (r.hi - r.lo) * 1e-3;
+            Some(r) => {
+                let pad = (r.hi - r.lo) * 1e-3 + DVec2::splat(1e-9);
                 Rect {
                     lo: r.lo - pad,
                     hi: r.hi + pad,
@@ -368,6 +359,18 @@ impl Projection {
                 hi: DVec2::splat(WIDE_WINDOW),
             },
         }
+    }
+
+    /// The rectangle around the projections of `points` on `plane`'s map,
+    /// when every one of them is deep enough.
+    fn around(&self, plane: MapPlane, points: impl IntoIterator<Item = DVec3>) -> Option<Rect> {
+        let mut all = true;
+        let r = Rect::around(points.into_iter().map_while(|p| {
+            let q = self.project(plane, p);
+            all &= q.is_some();
+            q
+        }));
+        all.then_some(r)
     }
 
     /// The rectangle around the image on `to`'s map of the cone of
@@ -396,16 +399,16 @@ impl Projection {
     /// is deep enough.
     fn node_rect(&self, plane: MapPlane, node: &Node) -> Option<Rect> {
         let (lo, hi) = (node.min, node.max());
-        let mut points = [DVec2::ZERO; 8];
-        for (k, p) in points.iter_mut().enumerate() {
-            let c = DVec3::new(
-                if k & 1 == 0 { lo.x } else { hi.x },
-                if k & 2 == 0 { lo.y } else { hi.y },
-                if k & 4 == 0 { lo.z } else { hi.z },
-            );
-            *p = self.project(plane, c)?;
-        }
-        Some(Rect::around(points))
+        self.around(
+            plane,
+            (0..8).map(|k| {
+                DVec3::new(
+                    if k & 1 == 0 { lo.x } else { hi.x },
+                    if k & 2 == 0 { lo.y } else { hi.y },
+                    if k & 4 == 0 { lo.z } else { hi.z },
+                )
+            }),
+        )
     }
 
     /// A rectangle inside the projection on `plane` of the part of a face
