@@ -62,7 +62,7 @@ pub use bake::bake;
 pub use map::{CellGrid, OcclusionMap, Rect, RectUnion};
 pub use octree::{Node, Octree, OctreeParams};
 pub use regions::Regions;
-pub use validity::{CLIP, Crossing, crossing};
+pub use validity::CLIP;
 
 use super::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,

@@ -376,3 +376,36 @@ impl Reader<'_> {
         self.take().map(f64::from_le_bytes)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::SceneBuilder;
+
+    #[test]
+    fn a_payload_decodes_to_the_octree_it_encodes_and_a_damaged_one_is_refused() {
+        let mut b = SceneBuilder::new("t");
+        b.begin_object("a", None);
+        super::super::tests::grid_box(&mut b, DVec3::splat(-1.0), DVec3::splat(1.0), 6, None);
+        b.begin_object("b", None);
+        super::super::tests::grid_box(&mut b, DVec3::splat(-0.2), DVec3::splat(0.2), 2, None);
+        let scene = b.finish();
+        let params = OctreeParams {
+            leaf_triangles: 16,
+            max_depth: 4,
+        };
+        let tree = super::super::bake(&scene, params).expect("a bake");
+        let bytes = tree.encode();
+        assert_eq!(Octree::decode(&bytes, &scene), Ok(tree.clone()));
+        assert!(Octree::decode(&bytes[..bytes.len() - 1], &scene).is_err(), "short");
+        // An object id the scene has not.
+        let mut bad = bytes.clone();
+        let last = bad.len() - 4;
+        bad[last..].copy_from_slice(&99u32.to_le_bytes());
+        assert!(Octree::decode(&bad, &scene).unwrap_err().contains("object 99"));
+        // A child index past the nodes.
+        let mut bad = bytes.clone();
+        bad[8 + 32..8 + 36].copy_from_slice(&u32::MAX.to_le_bytes());
+        assert!(Octree::decode(&bad, &scene).unwrap_err().contains("node 0"));
+    }
+}
