@@ -225,21 +225,7 @@ fn tiny_huge_and_degenerate_objects_at_extreme_cameras() {
     }
     let methods = common::prepare(common::scales_scene());
     assert!(methods.names().contains(&"gpu"), "{:?}", methods.names());
-    let registry = Registry::standard();
-    let mut r = common::rng(5);
-    let mut seen = Vec::new();
-    for i in 0..60 {
-        let mut cam = common::random_camera(&mut r, methods.scene(), 0.0);
-        cam.far = 1e6;
-        match i % 4 {
-            1 => (cam.near, cam.far) = (1e-6, 1e9),
-            2 => cam.fov_y_deg = 0.01,
-            3 => cam.fov_y_deg = 179.0,
-            _ => {}
-        }
-        seen.push(common::check_camera(&methods, &registry, cam));
-    }
-    common::assert_seen(&seen, 0.25);
+    common::check_extreme_cameras(&methods, 5, 60);
 }
 
 /// Geometry 1e5 units from the scene's origin seen from a metre away: a

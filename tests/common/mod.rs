@@ -272,6 +272,28 @@ pub fn check_camera(methods: &SceneMethods, registry: &Registry, cam: Camera) ->
     visible.len()
 }
 
+/// DESIGN's camera extremes over `methods`' scene: `cameras` random
+/// cameras (far 1e6), every fourth with near 1e-6 and far 1e9, fov 0.01°
+/// or 179°, each through [`check_camera`] (every method drops nothing
+/// truth sees); at least a quarter of them must see something.
+pub fn check_extreme_cameras(methods: &SceneMethods, seed: u64, cameras: usize) {
+    let registry = Registry::standard();
+    let mut r = rng(seed);
+    let mut seen = Vec::new();
+    for i in 0..cameras {
+        let mut cam = random_camera(&mut r, methods.scene(), 0.0);
+        cam.far = 1e6;
+        match i % 4 {
+            1 => (cam.near, cam.far) = (1e-6, 1e9),
+            2 => cam.fov_y_deg = 0.01,
+            3 => cam.fov_y_deg = 179.0,
+            _ => {}
+        }
+        seen.push(check_camera(methods, &registry, cam));
+    }
+    assert_seen(&seen, 0.25);
+}
+
 /// At least `share` of the cameras saw something (counts from
 /// [`check_camera`]): checks at extreme cameras were not vacuous.
 pub fn assert_seen(seen: &[usize], share: f64) {

@@ -188,6 +188,20 @@ impl RectUnion {
         (first, end)
     }
 
+    /// The scratch stack, holding the root and region of every bucket `r`
+    /// overlaps: where a walk over the union for `r` starts.
+    fn bucket_stack(&mut self, r: Rect) -> Vec<(u32, Rect)> {
+        let ((x0, x1), (y0, y1)) = (self.buckets(r, 0), self.buckets(r, 1));
+        let mut stack = std::mem::take(&mut self.stack);
+        stack.clear();
+        for j in y0..y1 {
+            for i in x0..x1 {
+                stack.push(self.bucket(i, j));
+            }
+        }
+        stack
+    }
+
     /// Bucket `(i, j)`'s root part and region.
     fn bucket(&self, i: usize, j: usize) -> (u32, Rect) {
         let [x, y] = &*self.edges;
@@ -211,14 +225,7 @@ impl RectUnion {
             return;
         }
         self.added = true;
-        let ((x0, x1), (y0, y1)) = (self.buckets(r, 0), self.buckets(r, 1));
-        let mut stack = std::mem::take(&mut self.stack);
-        stack.clear();
-        for j in y0..y1 {
-            for i in x0..x1 {
-                stack.push(self.bucket(i, j));
-            }
-        }
+        let mut stack = self.bucket_stack(r);
         while let Some((i, region)) = stack.pop() {
             match self.parts[i as usize] {
                 Part::Full => {}
@@ -307,14 +314,7 @@ impl RectUnion {
         if self.empty_at(centre) {
             return false;
         }
-        let ((x0, x1), (y0, y1)) = (self.buckets(r, 0), self.buckets(r, 1));
-        let mut stack = std::mem::take(&mut self.stack);
-        stack.clear();
-        for j in y0..y1 {
-            for i in x0..x1 {
-                stack.push(self.bucket(i, j));
-            }
-        }
+        let mut stack = self.bucket_stack(r);
         let mut hidden = true;
         while let Some((i, region)) = stack.pop() {
             match self.parts[i as usize] {
