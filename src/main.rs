@@ -97,7 +97,7 @@ struct EvalArgs {
     /// Methods with their options, comma-separated: `frustum,occlusion_tree:k=32`.
     #[arg(long, value_delimiter = ',', required = true, value_name = "M1,M2,...")]
     methods: Vec<String>,
-    /// The walkthrough: street, orbit or random.
+    /// The walkthrough: street, orbit, random, or views (unrelated random views: eyes uniform in the bounds, pitch within ±0.6 rad).
     #[arg(long, default_value = "street")]
     walk: pvsd::eval::WalkKind,
     /// Number of frames.

@@ -3,7 +3,8 @@
 //! A walkthrough ([`walk`]) gives the cameras. For each frame the ground
 //! truth is rendered once ([`Truth`]); each method then culls the frame with
 //! its own client cache carried from frame to frame, as a session would, and
-//! its answer is compared with the truth. The metrics are DESIGN's ("`pvsd
+//! its answer is compared with the truth (over unrelated `views`, each
+//! frame gets a fresh cache, as a stateless request does). The metrics are DESIGN's ("`pvsd
 //! eval --json` output"), plus a frame-cost model after the "Speedup" column
 //! of Bittner et al.'s Table 2: cull time + PVS triangles × a cost per
 //! triangle, so the report shows when culling pays.
@@ -178,10 +179,17 @@ pub fn run(
         // exactly, outside any method's timing.
         let in_frustum = FrustumCulling::reference(scene, view.frustum()).len() as u64;
         for (c, tally) in contenders.iter_mut().zip(&mut tallies) {
-            let cache = c
+            let mut cache = c
                 .cache
                 .take()
                 .expect("a contender's cache is back after each frame");
+            if !params.walk.kind.follows_on() {
+                // Unrelated views are stateless requests: nothing carried.
+                cache = c
+                    .method
+                    .new_cache(&c.options)
+                    .expect("options accepted once are accepted again");
+            }
             let mut job = CullJob::new(view, cache);
             job.out = std::mem::take(&mut out);
             let culled = cull_here(scene, &c.method, job)

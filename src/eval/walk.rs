@@ -33,6 +33,10 @@ pub enum WalkKind {
     Orbit,
     /// A smoothly wandering path at eye height.
     Random,
+    /// Unrelated views, as an occlusion culler's benchmark takes them: eyes
+    /// uniform in the scene's bounds, headings uniform, pitch uniform
+    /// within ±0.6 rad. No frame follows from the last.
+    Views,
 }
 
 impl WalkKind {
@@ -42,7 +46,14 @@ impl WalkKind {
             WalkKind::Street => "street",
             WalkKind::Orbit => "orbit",
             WalkKind::Random => "random",
+            WalkKind::Views => "views",
         }
+    }
+
+    /// Whether each frame follows from the last, as a session's do (all
+    /// but `views`).
+    pub fn follows_on(self) -> bool {
+        self != WalkKind::Views
     }
 }
 
@@ -53,7 +64,10 @@ impl std::str::FromStr for WalkKind {
             "street" => Ok(WalkKind::Street),
             "orbit" => Ok(WalkKind::Orbit),
             "random" => Ok(WalkKind::Random),
-            _ => Err(format!("unknown walk '{s}'; walks: street, orbit, random")),
+            "views" => Ok(WalkKind::Views),
+            _ => Err(format!(
+                "unknown walk '{s}'; walks: street, orbit, random, views"
+            )),
         }
     }
 }
@@ -118,6 +132,7 @@ pub fn walk(scene: &Scene, p: &WalkParams) -> Result<Vec<Camera>, WalkError> {
     let mut rng = ChaCha8Rng::seed_from_u64(p.seed);
     let local = match p.kind {
         WalkKind::Orbit => orbit(lo, hi, p.frames, &mut rng),
+        WalkKind::Views => views(lo, hi, p.frames, &mut rng),
         WalkKind::Street | WalkKind::Random => {
             let grid = FreeSpace::new(scene, p.eye_height);
             grid.walk(p.kind, p.frames, &mut rng)?
@@ -143,6 +158,29 @@ fn orbit(lo: DVec3, hi: DVec3, frames: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec
             let eye =
                 center + DVec3::new(a.cos() * radius * 1.5, radius * 0.4, a.sin() * radius * 1.5);
             (eye, center - eye)
+        })
+        .collect()
+}
+
+/// Most pitch of [`WalkKind::Views`], radians.
+const VIEWS_PITCH: f64 = 0.6;
+
+fn views(lo: DVec3, hi: DVec3, frames: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, DVec3)> {
+    (0..frames)
+        .map(|_| {
+            let eye = DVec3::new(
+                rng.random_range(lo.x..=hi.x),
+                rng.random_range(lo.y..=hi.y),
+                rng.random_range(lo.z..=hi.z),
+            );
+            let yaw = rng.random_range(0.0..std::f64::consts::TAU);
+            let pitch = rng.random_range(-VIEWS_PITCH..=VIEWS_PITCH);
+            let forward = DVec3::new(
+                yaw.cos() * pitch.cos(),
+                pitch.sin(),
+                yaw.sin() * pitch.cos(),
+            );
+            (eye, forward)
         })
         .collect()
 }
