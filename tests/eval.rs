@@ -347,7 +347,7 @@ fn eval_command_writes_json_and_svg() {
             "--scene",
             scene.to_str().unwrap(),
             "--methods",
-            "raster",
+            "ddo",
         ])
         .output()
         .unwrap();

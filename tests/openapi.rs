@@ -230,7 +230,7 @@ async fn errors_fit_the_error_schema() {
         (
             "POST",
             "/sessions",
-            "{\"scene\":\"city\",\"method\":\"raster\"}",
+            "{\"scene\":\"city\",\"method\":\"ddo\"}",
         ),
     ] {
         let req = Request::builder()

@@ -398,7 +398,7 @@ async fn unknown_and_deleted_sessions_are_404_expired_and_evicted_410() {
         &state,
         "POST",
         "/sessions",
-        Some(json!({"scene": "city", "method": "raster"})),
+        Some(json!({"scene": "city", "method": "ddo"})),
     )
     .await;
     assert_eq!(

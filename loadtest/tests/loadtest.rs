@@ -228,7 +228,7 @@ fn errors_are_counted_by_kind() {
         "--duration",
         "0.5",
         "--method",
-        "raster",
+        "ddo",
     ]);
     assert_eq!(r["errors_by_kind"]["create_session"], 2, "{r}");
     let status = Command::new(env!("CARGO_BIN_EXE_loadtest"))

@@ -15,7 +15,7 @@
 //!   (visibility classes, occluder selection, the kd hierarchy, tolerances);
 //!   [`occluder`]: the scene's large planar occluders;
 //! - one folder per method: [`frustum`], [`occlusion_tree`],
-//!   [`supporting_planes`], [`horizon`], [`ddo`], [`gpu`]. A method imports from the shared
+//!   [`supporting_planes`], [`horizon`], [`ddo`], [`gpu`], [`raster`]. A method imports from the shared
 //!   modules, never from another method.
 //!
 //! **Invariant:** culling never mutates a scene; a conservative method never
@@ -50,7 +50,8 @@ methods!(
     supporting_planes,
     horizon,
     ddo,
-    gpu
+    gpu,
+    raster
 );
 
 pub use device::{DeviceLimits, DeviceQueue};
@@ -60,8 +61,8 @@ pub use method::{
     Execution, Fallback, InFrustum, Occludees,
 };
 pub use registry::{
-    AUTO_CHOICE, CullOnceError, MethodContext, MethodEntry, NOT_BUILT, Preparation, Registry,
-    SceneMethods, Unsupported,
+    AUTO_CHOICE, CullOnceError, MethodContext, MethodEntry, Preparation, Registry, SceneMethods,
+    Unsupported,
 };
 pub use spec::{METHOD_NAMES, MethodError, MethodOptions, MethodSpec, OptionReader, Ranged};
 pub use view::View;

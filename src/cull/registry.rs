@@ -185,29 +185,12 @@ pub struct Registry {
 pub const AUTO_CHOICE: &str = "frustum";
 
 impl Registry {
-    /// Every method of DESIGN's list: those pvsd has (declared in
-    /// `cull/mod.rs`, each entry in its folder), then those it does not
-    /// have yet, which every scene lists as unsupported ([`NOT_BUILT`]).
+    /// Every method of DESIGN's list, in its order (declared in
+    /// `cull/mod.rs`, each entry in its folder).
     pub fn standard() -> Registry {
-        let built = super::BUILT;
-        let planned = PLANNED
-            .iter()
-            .filter(|(name, _)| !built.iter().any(|e| e.name == *name))
-            .map(|&(name, purpose)| MethodEntry {
-                name,
-                purpose,
-                checked_with: &[],
-                build: |_| Err(NOT_BUILT.into()),
-            });
-        let mut entries: Vec<MethodEntry> = built.iter().copied().chain(planned).collect();
-        // DESIGN's order, whichever planned method was built first.
-        entries.sort_by_key(|e| {
-            METHOD_NAMES
-                .iter()
-                .position(|&n| n == e.name)
-                .unwrap_or(usize::MAX)
-        });
-        Registry { entries }
+        Registry {
+            entries: super::BUILT.to_vec(),
+        }
     }
 
     /// This registry with one more entry (a test's method, a plug-in);
@@ -228,23 +211,6 @@ impl Registry {
         self.entries.iter().any(|e| e.name == name)
     }
 }
-
-/// The reason every scene gives for a method of DESIGN's list that pvsd
-/// does not have yet.
-pub const NOT_BUILT: &str = "not built yet";
-
-/// The methods of DESIGN's list that pvsd does not have yet, with what
-/// each will be for; one that gets built leaves this list by itself.
-const PLANNED: [(&str, &str); 2] = [
-    (
-        "ddo",
-        "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
-    ),
-    (
-        "raster",
-        "a conservative software depth buffer on the CPU (against Masked Occlusion Culling)",
-    ),
-];
 
 impl Default for Registry {
     fn default() -> Self {
@@ -442,15 +408,5 @@ mod tests {
             .filter(|&n| n != "auto")
             .collect();
         assert_eq!(names, design);
-    }
-
-    #[test]
-    fn a_planned_method_that_gets_built_leaves_the_planned_list() {
-        let built: Vec<&str> = super::super::BUILT.iter().map(|e| e.name).collect();
-        for (name, _) in PLANNED {
-            let entries = Registry::standard();
-            let count = entries.entries().iter().filter(|e| e.name == name).count();
-            assert_eq!(count, 1, "{name} once, built or planned (built: {built:?})");
-        }
     }
 }

@@ -6,7 +6,7 @@ use glam::{DVec3, Vec3};
 
 use super::Occluder;
 use crate::geom::ConvexPolygon;
-use crate::scene::Scene;
+use crate::scene::{Object, Scene};
 
 /// Occluder polygons of a scene (module docs of [`super`]).
 pub(super) fn occluder_polygons(scene: &Scene) -> Vec<Occluder> {
@@ -28,11 +28,7 @@ pub(super) fn occluder_polygons(scene: &Scene) -> Vec<Occluder> {
         if (hinted && o.occluder_hint != Some(true)) || !o.is_static() {
             continue;
         }
-        let tris: Vec<[Vec3; 3]> = (o.triangles.start..o.triangles.end)
-            .filter(|t| !o.see_through.iter().any(|r| r.contains(t)))
-            .map(|t| scene.triangles()[t as usize])
-            .collect();
-        for polygon in merge_coplanar(&tris) {
+        for polygon in object_polygons(scene, o) {
             let area = polygon.area();
             let Some(plane) = polygon.plane() else {
                 continue;
@@ -44,6 +40,16 @@ pub(super) fn occluder_polygons(scene: &Scene) -> Vec<Occluder> {
         }
     }
     out
+}
+
+/// An object's opaque triangles merged into maximal convex polygons, of
+/// every size (see-through triangles left out: they never hide anything).
+pub(crate) fn object_polygons(scene: &Scene, o: &Object) -> Vec<ConvexPolygon> {
+    let tris: Vec<[Vec3; 3]> = (o.triangles.start..o.triangles.end)
+        .filter(|t| !o.see_through.iter().any(|r| r.contains(t)))
+        .map(|t| scene.triangles()[t as usize])
+        .collect();
+    merge_coplanar(&tris)
 }
 
 /// A vertex's exact position, as a hashable key.
@@ -70,7 +76,7 @@ const OFFSET_QUANTUM: f64 = 1e-3;
 
 /// A merged polygon is planar when every corner lies within this many
 /// `f32` ulps (of the largest coordinate) of its plane: see [`is_planar`].
-const PLANARITY_ULPS: f64 = 2.0;
+pub(crate) const PLANARITY_ULPS: f64 = 2.0;
 
 /// A corner counts as convex when its turn against the loop's normal is
 /// above minus this share of its edges' lengths: a union bent inwards by

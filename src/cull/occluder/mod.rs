@@ -18,6 +18,8 @@
 
 mod extract;
 
+pub(crate) use extract::{PLANARITY_ULPS, object_polygons};
+
 use glam::{DVec3, Vec3};
 
 use super::occlusion::tolerance::EDGE_ON_TOLERANCE;

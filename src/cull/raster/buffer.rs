@@ -1,0 +1,212 @@
+//! The depth buffer: one value per cell (a cell is a square of viewport
+//! pixels), the *inverse* depth `1/z` of the nearest occluder known to
+//! cover every pixel centre of the cell, and per tile of 8×8 cells the
+//! least of them (the farthest). Zero means nothing covers the cell, and
+//! stands for a depth at infinity, so a cleared buffer hides nothing.
+//!
+//! Inverse depth because it is affine in screen position over a plane, so
+//! a polygon's values along a row are `base + k·step`; and because zero is
+//! a natural "nothing here". Every value written is a lower bound of the
+//! real inverse depth (the occluder is at least that near); a box is
+//! hidden when its own upper bound is below every cell it covers.
+
+use super::kernel::Kernel;
+
+/// Cells per tile side.
+pub const TILE: usize = 8;
+
+/// Cells `x0..=x1` × rows `y0..=y1` (inclusive, in cells).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CellRect {
+    pub x0: usize,
+    pub y0: usize,
+    pub x1: usize,
+    pub y1: usize,
+}
+
+/// A depth buffer of inverse depths; see the module docs.
+#[derive(Clone, Debug)]
+pub struct DepthBuffer {
+    cols: usize,
+    rows: usize,
+    /// Row length in memory: `cols` rounded up to whole tiles.
+    stride: usize,
+    cells: Vec<f32>,
+    /// Per row, the columns written since the last clear (`lo..hi`), so a
+    /// clear touches only those and a tile with an unwritten row is known
+    /// to hold a zero without reading it.
+    written: Vec<(u32, u32)>,
+    /// Per tile, the least value of its cells, where not stale.
+    tiles: Vec<f32>,
+    /// Per tile, whether a cell changed since its least value was taken:
+    /// it is taken again when a test needs it, so drawing and testing can
+    /// interleave and only tested tiles cost a pass.
+    stale: Vec<bool>,
+    kernel: Kernel,
+}
+
+impl DepthBuffer {
+    /// An empty buffer; [`DepthBuffer::reset`] sizes it.
+    pub fn new(kernel: Kernel) -> DepthBuffer {
+        DepthBuffer {
+            cols: 0,
+            rows: 0,
+            stride: 0,
+            cells: Vec::new(),
+            written: Vec::new(),
+            tiles: Vec::new(),
+            stale: Vec::new(),
+            kernel,
+        }
+    }
+
+    /// Runs its loops with `kernel` from now on.
+    pub fn set_kernel(&mut self, kernel: Kernel) {
+        self.kernel = kernel;
+    }
+
+    /// Clears the buffer to `cols × rows` cells of zero.
+    pub fn reset(&mut self, cols: usize, rows: usize) {
+        if (cols, rows) != (self.cols, self.rows) {
+            self.cols = cols;
+            self.rows = rows;
+            self.stride = cols.div_ceil(TILE) * TILE;
+            self.cells = vec![0.0; self.stride * rows];
+            self.written = vec![(u32::MAX, 0); rows];
+            self.tiles = vec![0.0; (self.stride / TILE) * rows.div_ceil(TILE)];
+            self.stale = vec![false; self.tiles.len()];
+            return;
+        }
+        self.tiles.fill(0.0);
+        self.stale.fill(false);
+        for (y, w) in self.written.iter_mut().enumerate() {
+            if w.0 < w.1 {
+                self.cells[y * self.stride + w.0 as usize..y * self.stride + w.1 as usize].fill(0.0);
+            }
+            *w = (u32::MAX, 0);
+        }
+    }
+
+    /// Raises cells `x0..=x1` of row `y` to `base + (x − x0)·step` where
+    /// that is larger.
+    pub fn raise_span(&mut self, y: usize, x0: usize, x1: usize, base: f32, step: f32) {
+        debug_assert!(x0 <= x1 && x1 < self.cols && y < self.rows);
+        let at = y * self.stride;
+        self.kernel
+            .raise(&mut self.cells[at + x0..=at + x1], base, step);
+        let w = &mut self.written[y];
+        *w = (w.0.min(x0 as u32), w.1.max(x1 as u32 + 1));
+        let first = (y / TILE) * (self.stride / TILE);
+        self.stale[first + x0 / TILE..=first + x1 / TILE].fill(true);
+    }
+
+    /// The least value of tile `(tx, ty)`, taken again if stale.
+    fn tile(&mut self, tx: usize, ty: usize) -> f32 {
+        let t = ty * (self.stride / TILE) + tx;
+        if self.stale[t] {
+            self.stale[t] = false;
+            let (r0, r1) = (ty * TILE, ((ty + 1) * TILE).min(self.rows));
+            let (c0, c1) = (tx * TILE, ((tx + 1) * TILE).min(self.cols));
+            // A tile with a cell outside its rows' written columns holds a
+            // zero there: no need to read it.
+            let all_written = self.written[r0..r1]
+                .iter()
+                .all(|&(lo, hi)| lo as usize <= c0 && hi as usize >= c1);
+            self.tiles[t] = if all_written {
+                self.kernel.least(
+                    &self.cells[r0 * self.stride + c0..],
+                    self.stride,
+                    c1 - c0,
+                    r1 - r0,
+                )
+            } else {
+                0.0
+            };
+        }
+        self.tiles[t]
+    }
+
+    /// Whether every cell of `rect` holds a value above `w` (an occluder
+    /// nearer than inverse depth `w` covers all of it).
+    pub fn hides(&mut self, rect: CellRect, w: f32) -> bool {
+        for ty in rect.y0 / TILE..=rect.y1 / TILE {
+            for tx in rect.x0 / TILE..=rect.x1 / TILE {
+                if self.tile(tx, ty) > w {
+                    continue;
+                }
+                // The tile's farthest cell is not nearer than `w`: look at
+                // the cells the rectangle has in it.
+                let (x0, x1) = (rect.x0.max(tx * TILE), rect.x1.min(tx * TILE + TILE - 1));
+                let (y0, y1) = (rect.y0.max(ty * TILE), rect.y1.min(ty * TILE + TILE - 1));
+                let whole = x0 == tx * TILE
+                    && x1 == (tx * TILE + TILE - 1).min(self.cols - 1)
+                    && y0 == ty * TILE
+                    && y1 == (ty * TILE + TILE - 1).min(self.rows - 1);
+                if whole {
+                    return false;
+                }
+                for y in y0..=y1 {
+                    let row = &self.cells[y * self.stride + x0..=y * self.stride + x1];
+                    if row.iter().any(|&c| c <= w) {
+                        return false;
+                    }
+                }
+            }
+        }
+        true
+    }
+
+    /// Bytes held on the heap.
+    pub fn heap_bytes(&self) -> usize {
+        (self.cells.capacity() + self.tiles.capacity()) * 4
+            + self.stale.capacity()
+            + self.written.capacity() * 8
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rect(x0: usize, y0: usize, x1: usize, y1: usize) -> CellRect {
+        CellRect { x0, y0, x1, y1 }
+    }
+
+    #[test]
+    fn a_span_hides_what_lies_behind_it_and_nothing_else() {
+        for kernel in [Kernel::Scalar, Kernel::detect()] {
+            let mut b = DepthBuffer::new(kernel);
+            b.reset(20, 11);
+            for y in 2..=9 {
+                b.raise_span(y, 3, 17, 0.5, 0.0);
+            }
+            assert!(b.hides(rect(3, 2, 17, 9), 0.4));
+            assert!(!b.hides(rect(3, 2, 17, 9), 0.5), "a tie is not hidden");
+            assert!(!b.hides(rect(2, 2, 17, 9), 0.4), "one column uncovered");
+            assert!(!b.hides(rect(3, 2, 17, 10), 0.4), "one row uncovered");
+            // A clear forgets it.
+            b.reset(20, 11);
+            assert!(!b.hides(rect(5, 5, 5, 5), 0.0001));
+        }
+    }
+
+    #[test]
+    fn tiles_hold_their_farthest_cell() {
+        let mut b = DepthBuffer::new(Kernel::detect());
+        b.reset(16, 8);
+        for y in 0..8 {
+            b.raise_span(y, 0, 15, 1.0, 0.0);
+        }
+        b.raise_span(3, 4, 4, 2.0, 0.0);
+        assert_eq!((b.tile(0, 0), b.tile(1, 0)), (1.0, 1.0));
+        assert!(b.hides(rect(0, 0, 15, 7), 0.99));
+        // A ramp: the least of the tile is its first cell.
+        b.reset(16, 8);
+        for y in 0..8 {
+            b.raise_span(y, 0, 15, 1.0, 0.25);
+        }
+        assert_eq!((b.tile(0, 0), b.tile(1, 0)), (1.0, 3.0));
+        assert!(b.hides(rect(8, 0, 15, 7), 2.9));
+        assert!(!b.hides(rect(7, 0, 15, 7), 2.9));
+    }
+}

@@ -1,0 +1,486 @@
+//! `raster`: conservative software occlusion culling on the CPU. A depth
+//! buffer at the request's viewport is drawn from real surfaces, and the
+//! kd-tree is walked front to back, its nodes and objects tested by their
+//! boxes against the buffer as it fills — the hierarchical depth test of
+//! Greene et al., on a CPU buffer as in Masked Occlusion Culling
+//! (Hasselgren, Andersson & Akenine-Möller 2016), with what a visibility
+//! server has that a game does not: polygons merged offline, a kd-tree, and
+//! last frame's answer.
+//!
+//! - [`screen`]: a view set up against the buffer: polygons into cells,
+//!   boxes into the cells they cover and their nearest inverse depth;
+//! - [`buffer`]: the buffer of inverse depths, with 8×8-cell tiles holding
+//!   their farthest value, taken again when a test needs a changed tile;
+//! - [`kernel`]: its two inner loops, in AVX2 and in plain Rust, bit for
+//!   bit the same (option `simd=false` runs the plain ones);
+//! - [`surfaces`]: each object's opaque triangles merged into convex
+//!   polygons, built once per scene.
+//!
+//! **Per frame.** First the buffer gets what is likely to hide the most:
+//! the objects a session's last frame found visible (the first of the two
+//! passes of modern GPU culling), and the `k` best of the scene's large
+//! occluders by area-angle (Bittner et al. §3) within `lambda` of the eye.
+//! Then the walk: near child first, a node outside the frustum or hidden
+//! is dropped with its subtree; in a leaf, each object's part in the cell
+//! is tested, and an object found visible is added to the answer and its
+//! surfaces drawn at once (those at least `min_size` pixels across), so
+//! that what it hides farther on is culled — the second pass. Avatars and
+//! movable objects are tested last, against the whole buffer.
+//!
+//! **Why it never drops a visible object.** Ground truth calls an object
+//! visible when it is the nearest opaque surface at some pixel centre of
+//! the viewport. A box is culled only when every pixel centre its screen
+//! outline covers holds a cell value above the box's nearest inverse depth
+//! (or when it covers no centre at all, and so cannot be drawn). A cell
+//! holds a value `v > 0` only where some drawn polygon covers *every*
+//! pixel centre of the cell, lying there no farther than depth `1/v`; a
+//! polygon is a union of one opaque object's own triangles (see-through
+//! triangles are never drawn), so at such a centre truth's nearest surface
+//! is at least that near, and every point of the box is farther: nothing
+//! of it wins the centre. What is drawn, and in which order, changes only
+//! how much is culled. The roundings all go one way:
+//! - coverage: a centre counts as covered only inside all of the
+//!   polygon's edge planes (through the eye) by a slack above `f64`
+//!   rounding, the merge's 1e-12 collinearity, and 1e-4 of a pixel, after
+//!   clipping the polygon to beyond a near plane pushed out by 1e-9;
+//! - depth: the polygon is taken as far from the eye as its thickness
+//!   allows (four `f32` ulps of its coordinates: the merge keeps corners
+//!   within two of the plane), so its inverse depth is a lower bound; a
+//!   cell takes the least over its corner centres (inverse depth is affine
+//!   on screen, so that is the least over all of them); the value is moved
+//!   down by the error of its `f32` evaluation `base + k·step` before it is
+//!   written;
+//! - boxes: the outline is widened by the view transform's rounding and
+//!   the pixel slack, and the nearest depth moved nearer by it, the
+//!   inverse depth rounded up to `f32`; a box reaching the near plane is
+//!   never culled; the comparison is strict, so a tie is visible.
+//!
+//! Cells of `cell × cell` pixels (`cell=2`, `4`) keep the argument: a cell
+//! is written only where a polygon covers all of its centres, with the
+//! least of their depths.
+
+mod buffer;
+mod kernel;
+mod screen;
+mod surfaces;
+
+use std::sync::{Arc, Mutex};
+
+use buffer::DepthBuffer;
+pub use kernel::Kernel;
+use screen::{Footprint, Scratch, Screen};
+use surfaces::Surfaces;
+
+use super::occlusion::Visibility;
+use super::occlusion::hierarchy;
+use super::{
+    CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
+    MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
+};
+use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
+use crate::scene::Scene;
+use crate::spatial::{KdTree, NodeKind};
+
+/// The method's registry entry.
+pub const ENTRY: MethodEntry = MethodEntry {
+    name: "raster",
+    purpose: "a conservative depth buffer on the CPU (SIMD) drawn from visible surfaces as a front-to-back walk finds them: general scenes",
+    checked_with: &["cell=2", "simd=false:splits=0", "min_size=0:budget=64"],
+    build,
+};
+
+/// Pixels per cell side.
+const CELL: Ranged<usize> = Ranged {
+    key: "cell",
+    noun: "a whole number of pixels",
+    default: 1,
+    min: 1,
+    max: 8,
+};
+
+/// A visible object's surfaces narrower than this on screen (pixels,
+/// across their bounding sphere) are not drawn: they would fill few cells
+/// for the cost of setting them up.
+const MIN_SIZE: Ranged<f64> = Ranged {
+    key: "min_size",
+    noun: "a number of pixels",
+    default: 4.0,
+    min: 0.0,
+    max: 1e6,
+};
+
+/// A box not hidden whole is halved, and its halves tried, up to this many
+/// times: a long box's nearest depth is far nearer than most of it.
+const SPLITS: Ranged<u32> = Ranged {
+    key: "splits",
+    noun: "a whole number",
+    default: 2,
+    min: 0,
+    max: 6,
+};
+
+/// Most polygons drawn per frame: a bound on a frame's work where much is
+/// near the eye (what is not drawn only hides less).
+const BUDGET: Ranged<u32> = Ranged {
+    key: "budget",
+    noun: "a whole number of polygons",
+    default: 1_000_000,
+    min: 0,
+    max: 1_000_000,
+};
+
+const OPTIONS: [&str; 5] = [
+    CELL.key,
+    MIN_SIZE.key,
+    SPLITS.key,
+    BUDGET.key,
+    "simd",
+];
+
+fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
+    let scene = p.scene().clone();
+    let surfaces = Surfaces::build(&scene);
+    if surfaces.len() == 0 {
+        return Err("the scene has no opaque surface to draw".into());
+    }
+    let b = scene.bounds();
+    let radius = b.min.abs().max(b.max.abs()).as_dvec3().length();
+    Ok(Arc::new(RasterCulling {
+        tree: p.kd_tree(),
+        scene,
+        surfaces,
+        radius,
+        pool: Arc::new(CanvasPool::default()),
+    }))
+}
+
+/// The method for one scene.
+pub struct RasterCulling {
+    scene: Arc<Scene>,
+    tree: Arc<KdTree>,
+    surfaces: Surfaces,
+    /// Bounds every scene-local coordinate.
+    radius: f64,
+    pool: Arc<CanvasPool>,
+}
+
+/// What one frame draws into and keeps track with; lent by the pool, so
+/// that a stateless request allocates nothing once the server is warm.
+struct Canvas {
+    buffer: DepthBuffer,
+    scratch: Scratch,
+    /// Per object, the frame that last drew its surfaces.
+    drawn: Vec<u32>,
+    frame: u32,
+    stack: Vec<(u32, PlaneMask)>,
+    /// How many times a box that is not hidden whole is halved and tried again.
+    splits: u32,
+    /// Polygons this frame may still draw.
+    budget: u32,
+}
+
+impl Canvas {
+    fn new(kernel: Kernel) -> Canvas {
+        Canvas {
+            buffer: DepthBuffer::new(kernel),
+            scratch: Scratch::default(),
+            drawn: Vec::new(),
+            frame: 0,
+            stack: Vec::new(),
+            splits: 0,
+            budget: 0,
+        }
+    }
+
+    /// Starts a frame over `objects` objects.
+    fn begin(&mut self, objects: usize, cols: usize, rows: usize, splits: u32, budget: u32) {
+        self.splits = splits;
+        self.budget = budget;
+        self.buffer.reset(cols, rows);
+        self.drawn.resize(objects, 0);
+        self.frame = self.frame.wrapping_add(1);
+        if self.frame == 0 {
+            self.drawn.fill(0);
+            self.frame = 1;
+        }
+    }
+
+    /// What the buffer says of a box.
+    fn visibility(&mut self, screen: &Screen, b: &Aabb) -> Visibility {
+        if self.hidden(screen, b, self.splits) {
+            Visibility::Invisible
+        } else {
+            Visibility::Partial
+        }
+    }
+
+    /// Whether the buffer hides all of `b`: its outline at its nearest
+    /// depth, or else each of its halves (along its longest side, down to
+    /// `splits` times), whose nearest depths are farther.
+    fn hidden(&mut self, screen: &Screen, b: &Aabb, splits: u32) -> bool {
+        let whole = match screen.footprint(b) {
+            Footprint::Near => false,
+            Footprint::Nothing => return true,
+            Footprint::Cells(rect, w) => self.buffer.hides(rect, w),
+        };
+        whole
+            || (splits > 0 && {
+                let axis = b.longest_axis();
+                let mid = (b.min[axis] + b.max[axis]) * 0.5;
+                let (mut lo, mut hi) = (*b, *b);
+                (lo.max[axis], hi.min[axis]) = (mid, mid);
+                self.hidden(screen, &lo, splits - 1) && self.hidden(screen, &hi, splits - 1)
+            })
+    }
+
+    fn heap_bytes(&self) -> usize {
+        self.buffer.heap_bytes() + self.drawn.capacity() * 4 + self.stack.capacity() * 8
+    }
+}
+
+/// Canvases of clients that are gone, lent to new ones: a stateless
+/// request would otherwise allocate, and fault in, a whole buffer.
+#[derive(Default)]
+struct CanvasPool(Mutex<Vec<Canvas>>);
+
+/// Most canvases a pool keeps (about a busy server's concurrent stateless
+/// requests); more are freed.
+const POOLED: usize = 16;
+
+impl CanvasPool {
+    fn take(&self, kernel: Kernel) -> Canvas {
+        let pooled = self.0.lock().unwrap_or_else(|e| e.into_inner()).pop();
+        let mut canvas = pooled.unwrap_or_else(|| Canvas::new(kernel));
+        canvas.buffer.set_kernel(kernel);
+        canvas
+    }
+
+    fn put(&self, canvas: Canvas) {
+        let mut pooled = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if pooled.len() < POOLED {
+            pooled.push(canvas);
+        }
+    }
+}
+
+/// A client's state: options, last frame's answer, and a canvas.
+pub struct RasterState {
+    cell: usize,
+    min_size: f64,
+    splits: u32,
+    budget: u32,
+    kernel: Kernel,
+    /// The objects last frame found visible (empty before the first).
+    last: Vec<u32>,
+    /// Lent by the pool on the first frame, given back when dropped.
+    canvas: Option<Canvas>,
+    pool: Arc<CanvasPool>,
+}
+
+impl Drop for RasterState {
+    fn drop(&mut self) {
+        if let Some(canvas) = self.canvas.take() {
+            self.pool.put(canvas);
+        }
+    }
+}
+
+impl RasterCulling {
+    /// Draws the surfaces of object `id` (once a frame) that are at least
+    /// `min_size` pixels across.
+    fn draw_object(&self, view: &View, screen: &Screen, id: u32, min_size: f64, canvas: &mut Canvas) {
+        if canvas.drawn[id as usize] == canvas.frame {
+            return;
+        }
+        canvas.drawn[id as usize] = canvas.frame;
+        let eye = view.eye();
+        let bounds = &self.scene.objects()[id as usize].bounds;
+        // A closed object's back faces lie behind its front faces, unless
+        // those are cut away by the near plane (or the eye is inside).
+        let front_only = self.surfaces.is_closed(id)
+            && bounds.distance_to(eye) > 0.0
+            && screen.pixels_per_unit(bounds).is_finite();
+        let planes = view.frustum().planes();
+        for cluster in self.surfaces.clusters_of(id) {
+            if canvas.budget == 0 {
+                return;
+            }
+            // Drawing fewer surfaces only hides less: skip clusters and
+            // surfaces off the view, too small, or hidden already, and
+            // back faces of closed objects.
+            let scale = screen.pixels_per_unit(&cluster.bounds);
+            if 2.0 * cluster.largest * scale < min_size
+                || view.frustum().classify(&cluster.bounds, ALL_PLANES).0 == Side::Outside
+                || canvas.visibility(screen, &cluster.bounds) == Visibility::Invisible
+            {
+                continue;
+            }
+            for s in self.surfaces.of_cluster(cluster) {
+                // Largest first: the first too small at the cluster's
+                // nearest depth ends it.
+                if 2.0 * s.radius * scale < min_size {
+                    break;
+                }
+                if (front_only && s.plane.signed_distance(eye) < 0.0)
+                    || planes.iter().any(|p| p.signed_distance(s.centre) < -s.radius)
+                    || screen.pixels_across(s.centre, s.radius) < min_size
+                {
+                    continue;
+                }
+                let drawn = screen.draw(
+                    self.surfaces.corners(s),
+                    &s.plane,
+                    s.thickness,
+                    &mut canvas.buffer,
+                    &mut canvas.scratch,
+                );
+                if drawn {
+                    canvas.budget -= 1;
+                    if canvas.budget == 0 {
+                        return;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The walk: front to back, nodes and objects tested against the
+    /// buffer, visible objects added and drawn as they are found.
+    fn walk(
+        &self,
+        view: &View,
+        screen: &Screen,
+        min_size: f64,
+        canvas: &mut Canvas,
+        out: &mut VisibleSet,
+    ) -> u64 {
+        let (nodes, objects) = (self.tree.nodes(), self.scene.objects());
+        let eye = view.eye();
+        let mut tested = 0u64;
+        let mut stack = std::mem::take(&mut canvas.stack);
+        stack.clear();
+        if !nodes.is_empty() {
+            stack.push((0, ALL_PLANES));
+        }
+        while let Some((i, mask)) = stack.pop() {
+            let node = &nodes[i as usize];
+            tested += 1;
+            let (side, mask) = view.frustum().classify(&node.bounds, mask);
+            if side == Side::Outside || canvas.visibility(screen, &node.bounds) == Visibility::Invisible {
+                continue;
+            }
+            match node.kind {
+                NodeKind::Inner {
+                    axis,
+                    split,
+                    children,
+                } => {
+                    // Near child on top of the stack.
+                    let below = eye[axis as usize] < split as f64;
+                    let (near, far) = if below {
+                        (children[0], children[1])
+                    } else {
+                        (children[1], children[0])
+                    };
+                    stack.push((far, mask));
+                    stack.push((near, mask));
+                }
+                NodeKind::Leaf => {
+                    for &id in self.tree.node_refs(node) {
+                        if out.contains(id) {
+                            continue;
+                        }
+                        let part = objects[id as usize].bounds.clipped(&node.cell);
+                        if view.frustum().classify_exact(&part, mask).0 != Side::Outside
+                            && canvas.visibility(screen, &part) != Visibility::Invisible
+                        {
+                            out.push(id);
+                            self.draw_object(view, screen, id, min_size, canvas);
+                        }
+                    }
+                }
+            }
+        }
+        canvas.stack = stack;
+        tested
+    }
+}
+
+impl CullMethod for RasterCulling {
+    type State = RasterState;
+
+    fn name(&self) -> &'static str {
+        "raster"
+    }
+
+    fn new_state(&self, options: &MethodOptions) -> Result<Self::State, MethodError> {
+        let r = options.reader("raster", &OPTIONS);
+        let cell = r.ranged(&CELL)?;
+        let min_size = r.ranged(&MIN_SIZE)?;
+        let splits = r.ranged(&SPLITS)?;
+        let budget = r.ranged(&BUDGET)?;
+        let kernel = if r.flag("simd", true)? {
+            Kernel::detect()
+        } else {
+            Kernel::Scalar
+        };
+        r.finish()?;
+        Ok(RasterState {
+            cell,
+            min_size,
+            splits,
+            budget,
+            kernel,
+            last: Vec::new(),
+            canvas: None,
+            pool: self.pool.clone(),
+        })
+    }
+
+    fn is_conservative(&self, _: &Self::State) -> bool {
+        true
+    }
+
+    fn cull(
+        &self,
+        view: &View,
+        state: &mut Self::State,
+        out: &mut VisibleSet,
+        occludees: &mut Occludees,
+    ) -> Result<CullCounters, CullError> {
+        let screen = Screen::new(view, state.cell, self.radius);
+        let (cols, rows) = screen.cells();
+        let RasterState {
+            min_size,
+            splits,
+            budget,
+            kernel,
+            last,
+            canvas,
+            pool,
+            ..
+        } = state;
+        let canvas = canvas.get_or_insert_with(|| pool.take(*kernel));
+        canvas.begin(self.scene.objects().len(), cols, rows, *splits, *budget);
+
+        // What likely hides the most, first: last frame's visible objects.
+        for &id in last.iter() {
+            self.draw_object(view, &screen, id, *min_size, canvas);
+        }
+
+        let tested = self.walk(view, &screen, *min_size, canvas, out);
+        hierarchy::test_occludees(occludees, &mut |_, b| canvas.visibility(&screen, b));
+        last.clear();
+        last.extend_from_slice(out.ids());
+        Ok(CullCounters {
+            nodes_tested: tested,
+            in_frustum: InFrustum::Unknown,
+        })
+    }
+
+    fn state_bytes(&self, state: &Self::State) -> usize {
+        std::mem::size_of::<Self::State>()
+            + state.last.capacity() * 4
+            + state.canvas.as_ref().map_or(0, Canvas::heap_bytes)
+    }
+}

@@ -1,0 +1,438 @@
+//! A view set up for the depth buffer: occluder polygons drawn into cells
+//! and boxes turned into the cells they cover and their nearest inverse
+//! depth, both rounded so that the buffer can only under-state what an
+//! occluder hides (the module doc of [`super`] gives the argument).
+//!
+//! Screen positions are the viewport's pixels (x right, y down); pixel
+//! `(i, j)` has its centre at `(i + ½, j + ½)`, as ground truth's. The ray
+//! through screen position `(x, y)` is `r = (X·tx, Y·ty, 1)` in view space
+//! with `X = 2x/W − 1`, `Y = 1 − 2y/H`, so that anything linear in `r` is
+//! affine in `(x, y)`: the side of a plane through the eye (an occluder's
+//! edge seen from the eye) and the inverse depth `1/z` of a plane.
+
+use glam::DVec3;
+
+use super::buffer::{CellRect, DepthBuffer};
+use crate::cull::View;
+use crate::geom::{Aabb, Plane};
+
+/// An occluder's corners must lie inside a pixel centre's edge planes by
+/// this share of their squared distance from the eye (times the ray's
+/// length), beyond rounding: the merged polygons may stand out of their
+/// triangles by 1e-12 of an edge (`occluder::extract`'s `COLLINEAR`), and
+/// `f64` rounding is ~1e-16; 1e-9 covers both a thousand times over and is
+/// 1e-6 of a pixel on any viewport.
+const EDGE_SLACK: f64 = 1e-9;
+
+/// Also a pixel centre must lie this far (in pixels) inside an occluder's
+/// outline, and a box's outline is widened by as much: ground truth's own
+/// rasterizer rounds too, and a centre this close to an edge is not worth
+/// deciding.
+const PIXEL_SLACK: f64 = 1e-4;
+
+/// Rounding of a scene-local position moved to view space, as a share of
+/// the magnitudes involved (the eye's and the point's distance from the
+/// scene origin): a few `f64` ulps, taken a thousand times over.
+const TRANSFORM_SLACK: f64 = 1e-12;
+
+/// Near-plane clipping keeps the part of a polygon beyond `near` grown by
+/// this share, so that rounding of the cut never leaves a corner in front
+/// of the plane, where ground truth draws nothing.
+const NEAR_SLACK: f64 = 1e-9;
+
+/// Buffers one draw reuses from the last, so drawing allocates nothing.
+#[derive(Clone, Debug, Default)]
+pub struct Scratch {
+    poly: Vec<DVec3>,
+    edges: Vec<(f64, f64, f64, f64)>,
+    left: Vec<(f64, f64)>,
+    right: Vec<(f64, f64)>,
+    level: Vec<(f64, f64)>,
+}
+
+/// `⌈x⌉` for finite `x`, saturating (without a libm call on CPUs that
+/// have no rounding instruction in the baseline).
+#[inline]
+fn ceil(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) < x { i + 1 } else { i }
+}
+
+/// `⌊x⌋` for finite `x`, saturating.
+#[inline]
+fn floor(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x { i - 1 } else { i }
+}
+
+/// What a box covers on screen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Footprint {
+    /// It reaches the near plane (or behind the eye): not decidable here.
+    Near,
+    /// It covers no pixel centre: nothing of it can be drawn.
+    Nothing,
+    /// It covers at most these cells, no nearer than inverse depth `w`.
+    Cells(CellRect, f32),
+}
+
+/// A view set up against the buffer's cells.
+#[derive(Clone, Copy, Debug)]
+pub struct Screen {
+    eye: DVec3,
+    right: DVec3,
+    up: DVec3,
+    forward: DVec3,
+    tx: f64,
+    ty: f64,
+    near: f64,
+    /// Viewport, pixels.
+    width: f64,
+    height: f64,
+    /// Pixels per cell side.
+    cell: usize,
+    cols: usize,
+    rows: usize,
+    /// The longest ray `r` (at a corner of the screen).
+    ray: f64,
+    /// Absolute rounding of a view-space position (scene units).
+    slack: f64,
+}
+
+impl Screen {
+    /// `view` with cells of `cell × cell` pixels; `scene_radius` bounds the
+    /// scene-local coordinates of everything drawn or tested.
+    pub fn new(view: &View, cell: usize, scene_radius: f64) -> Screen {
+        let camera = view.camera();
+        let (tx, ty) = camera.half_tangents();
+        let [w, h] = camera.viewport;
+        let b = view.basis();
+        Screen {
+            eye: view.eye(),
+            right: b.right,
+            up: b.up,
+            forward: b.forward,
+            tx,
+            ty,
+            near: camera.near,
+            width: w as f64,
+            height: h as f64,
+            cell,
+            cols: (w as usize).div_ceil(cell),
+            rows: (h as usize).div_ceil(cell),
+            ray: (tx * tx + ty * ty + 1.0).sqrt(),
+            slack: TRANSFORM_SLACK * (view.eye().length() + scene_radius),
+        }
+    }
+
+    /// Cells across, cells down.
+    pub fn cells(&self) -> (usize, usize) {
+        (self.cols, self.rows)
+    }
+
+    fn view_of(&self, p: DVec3) -> DVec3 {
+        let d = p - self.eye;
+        DVec3::new(d.dot(self.right), d.dot(self.up), d.dot(self.forward))
+    }
+
+    fn screen_of(&self, v: DVec3) -> (f64, f64) {
+        (
+            (v.x / (v.z * self.tx) + 1.0) * 0.5 * self.width,
+            (1.0 - v.y / (v.z * self.ty)) * 0.5 * self.height,
+        )
+    }
+
+    /// About how many pixels across a sphere of `radius` around `centre`
+    /// (scene-local) shows; infinite when it reaches the near plane.
+    pub fn pixels_across(&self, centre: DVec3, radius: f64) -> f64 {
+        let z = (centre - self.eye).dot(self.forward) - radius;
+        if z <= self.near {
+            return f64::INFINITY;
+        }
+        2.0 * radius / z * (0.5 * self.height / self.ty)
+    }
+
+    /// Pixels per scene unit at the nearest depth of box `b` (infinite
+    /// when it reaches the near plane).
+    pub fn pixels_per_unit(&self, b: &Aabb) -> f64 {
+        let (c, h) = (b.center().as_dvec3(), b.extent().as_dvec3() * 0.5);
+        let z = (c - self.eye).dot(self.forward) - h.dot(self.forward.abs());
+        if z <= self.near {
+            return f64::INFINITY;
+        }
+        0.5 * self.height / self.ty / z
+    }
+
+    /// Draws the convex polygon `corners` (scene-local) of plane `plane`
+    /// into `buffer`: every cell all of whose pixel centres it covers
+    /// (beyond the near plane) gets at least `1/z` of its farthest point
+    /// among those centres, with the polygon taken `thickness` farther
+    /// from the eye than its plane (what its triangles may stray from it).
+    /// Whether it was drawn (not off the view, edge-on, or hidden already).
+    pub fn draw(
+        &self,
+        corners: &[DVec3],
+        plane: &Plane,
+        thickness: f64,
+        buffer: &mut DepthBuffer,
+        scratch: &mut Scratch,
+    ) -> bool {
+        // The plane seen from the eye: n·v = dist for its points v (view space).
+        let mut n = DVec3::new(
+            plane.normal.dot(self.right),
+            plane.normal.dot(self.up),
+            plane.normal.dot(self.forward),
+        );
+        if corners.len() < 3 {
+            return false;
+        }
+        let mut dist = -plane.signed_distance(self.eye);
+        if dist < 0.0 {
+            (n, dist) = (-n, -dist);
+        }
+        let far_side = dist + thickness + self.slack;
+        if dist <= 2.0 * (thickness + self.slack) {
+            return false; // seen edge-on, or from within its thickness: hides nothing sure
+        }
+        self.clip_near(corners, &mut scratch.poly);
+        let poly = &scratch.poly[..];
+        let len = poly.len();
+        if len < 3 {
+            return false;
+        }
+
+        // Screen bounds of the clipped polygon: the rows to visit.
+        let (mut y_lo, mut y_hi, mut x_lo, mut x_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        for &v in poly {
+            let (x, y) = self.screen_of(v);
+            (x_lo, x_hi, y_lo, y_hi) = (x_lo.min(x), x_hi.max(x), y_lo.min(y), y_hi.max(y));
+        }
+        if !(x_hi >= 0.0 && x_lo <= self.width && y_hi >= 0.0 && y_lo <= self.height) {
+            return false;
+        }
+        // Hidden already where it would write (each cell above its nearest
+        // inverse depth): drawing it would change nothing.
+        let z_min = poly.iter().map(|v| v.z).fold(f64::INFINITY, f64::min);
+        let c = self.cell as f64;
+        let cells = CellRect {
+            x0: (x_lo / c).floor().max(0.0) as usize,
+            y0: (y_lo / c).floor().max(0.0) as usize,
+            x1: (x_hi / c).floor().min(self.cols as f64 - 1.0) as usize,
+            y1: (y_hi / c).floor().min(self.rows as f64 - 1.0) as usize,
+        };
+        if buffer.hides(cells, (1.0 / z_min) as f32) {
+            return false;
+        }
+        // Edge functions A·x + B·y + C ≥ tol inside, one per edge.
+        let centroid: DVec3 = poly.iter().sum::<DVec3>() / len as f64;
+        let edges = &mut scratch.edges;
+        edges.clear();
+        let mut orientation = 0.0;
+        for k in 0..len {
+            let (a, b) = (poly[k], poly[(k + 1) % len]);
+            let e = a.cross(b);
+            orientation += e.dot(centroid);
+            let size = a.length_squared().max(b.length_squared()).sqrt();
+            let tol = (EDGE_SLACK * size + self.slack * 4.0) * size * self.ray;
+            let (ea, eb) = (2.0 * e.x * self.tx / self.width, -2.0 * e.y * self.ty / self.height);
+            edges.push((ea, eb, -e.x * self.tx + e.y * self.ty + e.z, tol));
+        }
+        if !(orientation != 0.0 && orientation.is_finite()) {
+            return false;
+        }
+        let s = orientation.signum();
+        for e in edges.iter_mut() {
+            (e.0, e.1, e.2) = (e.0 * s, e.1 * s, e.2 * s);
+            // |A| + |B| ≥ the edge function's growth per pixel of distance.
+            e.3 += PIXEL_SLACK * (e.0.abs() + e.1.abs());
+        }
+        let edges = &edges[..];
+
+        // Inverse depth: w(x, y) = n·r / far_side, affine in (x, y).
+        let wa = 2.0 * n.x * self.tx / (self.width * far_side);
+        let wb = -2.0 * n.y * self.ty / (self.height * far_side);
+        let wc = (-n.x * self.tx + n.y * self.ty + n.z) / far_side;
+        let w_round = TRANSFORM_SLACK
+            * (wa.abs() * self.width + wb.abs() * self.height + wc.abs());
+        if !(wa.is_finite() && wb.is_finite() && wc.is_finite()) {
+            return false;
+        }
+
+        // Per edge, the bound on a row's cells as an affine function of
+        // the row's centre y, in cell columns: `first ≥ p + q·y` for edges
+        // facing right, `last ≤ p + q·y` for edges facing left, and rows
+        // wholly on one side for level edges. Solving `A·x + B·y + C ≥ tol`
+        // once instead of per row rounds differently by ~1e-16 of the
+        // terms, under 1e-9 of the pixel slack in `tol` on any viewport.
+        let (left, right, level) = (&mut scratch.left, &mut scratch.right, &mut scratch.level);
+        left.clear();
+        right.clear();
+        level.clear();
+        for &(ea, eb, ec, tol) in edges {
+            if ea == 0.0 {
+                level.push((eb, ec - tol));
+                continue;
+            }
+            let p = (tol - ec) / ea - 0.5;
+            let q = -eb / ea / c;
+            if !(p.is_finite() && q.is_finite()) {
+                return false;
+            }
+            if ea > 0.0 {
+                left.push((p / c, q));
+            } else {
+                right.push(((p - (c - 1.0)) / c, q));
+            }
+        }
+        // In f32, `base + k·step` rounds twice, each within half an ulp of
+        // the larger magnitude (at most the polygon's largest inverse
+        // depth, `1/z_min`, or a row's worth of steps), and `base` and
+        // `step` round once each on the way to f32: three ulps of both
+        // bound it, and `base` is lowered by that before conversion.
+        let step = wa * c;
+        let step32 = step as f32;
+        let f32_margin = 3.0
+            * f32::EPSILON as f64
+            * (1.0 / z_min + 2.0 * self.cols as f64 * step.abs())
+            + f32::MIN_POSITIVE as f64;
+        let row_first = ((y_lo / c).floor().max(0.0)) as usize;
+        let row_last = ((y_hi / c).floor().min(self.rows as f64 - 1.0)) as usize;
+        let last_col = self.cols as i64 - 1;
+        for row in row_first..=row_last {
+            // The first and last pixel centres of the cell row.
+            let y_top = (row * self.cell) as f64 + 0.5;
+            let y_bot = ((row * self.cell + self.cell - 1) as f64).min(self.height - 1.0) + 0.5;
+            if level.iter().any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0) {
+                continue;
+            }
+            // Each bound is affine in y: the binding one of the two rows is
+            // known from its slope, and ⌈max⌉ = max⌈⌉.
+            let mut first = 0.0f64;
+            for &(p, q) in left.iter() {
+                first = first.max(p + q * if q > 0.0 { y_bot } else { y_top });
+            }
+            let mut last = last_col as f64;
+            for &(p, q) in right.iter() {
+                last = last.min(p + q * if q < 0.0 { y_bot } else { y_top });
+            }
+            let (lo, hi) = (ceil(first), floor(last));
+            if lo > hi {
+                continue;
+            }
+            let (lo, hi) = (lo as usize, hi as usize);
+            // The farthest of the cell's corner centres: the least w.
+            let x_first = (lo * self.cell) as f64 + 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
+            let y = if wb < 0.0 { y_bot } else { y_top };
+            let base = wa * x_first + wb * y + wc - w_round - f32_margin;
+            buffer.raise_span(row, lo, hi, base as f32, step32);
+        }
+        true
+    }
+
+    /// `corners` moved to view space and clipped to beyond the near plane,
+    /// into `out` (fewer than three corners: nothing left). Corners that
+    /// round together are merged.
+    fn clip_near(&self, corners: &[DVec3], out: &mut Vec<DVec3>) {
+        let near = self.near * (1.0 + NEAR_SLACK) + self.slack;
+        out.clear();
+        let push = |p: DVec3, out: &mut Vec<DVec3>| {
+            if out
+                .last()
+                .is_none_or(|q| (*q - p).length_squared() > 1e-24 * p.length_squared())
+            {
+                out.push(p);
+            }
+        };
+        let n = corners.len();
+        let mut a = self.view_of(corners[n - 1]);
+        for &c in corners {
+            let b = self.view_of(c);
+            let (ina, inb) = (a.z >= near, b.z >= near);
+            if ina != inb {
+                let t = (near - a.z) / (b.z - a.z);
+                let mut p = a + (b - a) * t;
+                p.z = near;
+                push(p, out);
+            }
+            if inb {
+                push(b, out);
+            }
+            a = b;
+        }
+        while out.len() > 1
+            && (out[0] - out[out.len() - 1]).length_squared() <= 1e-24 * out[0].length_squared()
+        {
+            out.pop();
+        }
+        if out.len() < 3 {
+            out.clear();
+        }
+    }
+
+    /// The cells `b` (scene-local) may cover and its nearest inverse depth.
+    pub fn footprint(&self, b: &Aabb) -> Footprint {
+        // Corners as the near corner plus the box's edges in view space.
+        let e = (b.max - b.min).as_dvec3();
+        let base = self.view_of(b.min.as_dvec3());
+        let axis = |len: f64, a: usize| {
+            DVec3::new(self.right[a], self.up[a], self.forward[a]) * len
+        };
+        let (ex, ey, ez) = (axis(e.x, 0), axis(e.y, 1), axis(e.z, 2));
+        let mut z_min = f64::INFINITY;
+        let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        for i in 0..8 {
+            let mut v = base;
+            if i & 1 != 0 {
+                v += ex;
+            }
+            if i & 2 != 0 {
+                v += ey;
+            }
+            if i & 4 != 0 {
+                v += ez;
+            }
+            // Also NaN: not decidable.
+            if v.z.partial_cmp(&(self.near + self.slack)) != Some(std::cmp::Ordering::Greater) {
+                return Footprint::Near;
+            }
+            z_min = z_min.min(v.z);
+            let inv = 1.0 / v.z;
+            let (x, y) = (v.x * inv, v.y * inv);
+            (x_lo, x_hi, y_lo, y_hi) = (x_lo.min(x), x_hi.max(x), y_lo.min(y), y_hi.max(y));
+        }
+        // The corners' rounding, moved to the screen: the slack over the
+        // nearest depth in tangent units, more for corners off to the
+        // side; then into pixels, with 1e-9 of them for the division.
+        let (sx, sy) = (0.5 * self.width / self.tx, 0.5 * self.height / self.ty);
+        let tan_x = x_lo.abs().max(x_hi.abs());
+        let tan_y = y_lo.abs().max(y_hi.abs());
+        let err_x = self.slack * (1.0 + tan_x) / z_min * sx + 1e-9 * (tan_x * sx + self.width);
+        let err_y = self.slack * (1.0 + tan_y) / z_min * sy + 1e-9 * (tan_y * sy + self.height);
+        let to_x = |t: f64| (t / self.tx + 1.0) * 0.5 * self.width;
+        let to_y = |t: f64| (1.0 - t / self.ty) * 0.5 * self.height;
+        // Pixel centres i + ½ within the outline, widened by the slacks.
+        let i0 = ceil(to_x(x_lo) - err_x - PIXEL_SLACK - 0.5).max(0);
+        let i1 = floor(to_x(x_hi) + err_x + PIXEL_SLACK - 0.5).min(self.width as i64 - 1);
+        let j0 = ceil(to_y(y_hi) - err_y - PIXEL_SLACK - 0.5).max(0);
+        let j1 = floor(to_y(y_lo) + err_y + PIXEL_SLACK - 0.5).min(self.height as i64 - 1);
+        if !(i0 <= i1 && j0 <= j1) {
+            return Footprint::Nothing;
+        }
+        let w = 1.0 / (z_min - self.slack);
+        let mut w32 = w as f32;
+        if (w32 as f64) < w {
+            // w > 0: the next float up is one more in its bits.
+            w32 = f32::from_bits(w32.to_bits() + 1);
+        }
+        let c = self.cell;
+        Footprint::Cells(
+            CellRect {
+                x0: i0 as usize / c,
+                y0: j0 as usize / c,
+                x1: i1 as usize / c,
+                y1: j1 as usize / c,
+            },
+            w32,
+        )
+    }
+}

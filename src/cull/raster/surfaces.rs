@@ -1,0 +1,220 @@
+//! What `raster` draws of an object once it found the object visible: its
+//! opaque triangles merged into maximal convex polygons (the merge the
+//! occluders come from, `cull::occluder`, without their size threshold),
+//! each with its plane, how far its triangles may stray from that plane,
+//! and a bounding sphere to judge its size on screen; an object's surfaces
+//! are grouped into small clusters of neighbours with a box each, so a
+//! frame skips whole clusters that are off the view, too small, or hidden
+//! already. Built once per scene, on all cores.
+
+use std::ops::Range;
+
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+use rustc_hash::FxHashSet;
+
+use crate::cull::occluder::{PLANARITY_ULPS, object_polygons};
+use crate::geom::{Aabb, Plane};
+use crate::scene::{Object, Scene};
+
+/// One polygon: its corners are `Surfaces::corners[corners]`.
+#[derive(Clone, Debug)]
+pub struct Surface {
+    pub corners: Range<u32>,
+    pub plane: Plane,
+    /// How far its triangles may lie from `plane` (scene units).
+    pub thickness: f64,
+    /// Centre and radius of a sphere holding it.
+    pub centre: DVec3,
+    pub radius: f64,
+}
+
+/// Neighbouring surfaces of one object, largest first.
+#[derive(Clone, Debug)]
+pub struct Cluster {
+    pub surfaces: Range<u32>,
+    /// A box holding them.
+    pub bounds: Aabb,
+    /// The radius of the largest.
+    pub largest: f64,
+}
+
+/// Most surfaces in a cluster.
+const CLUSTER: usize = 32;
+
+/// The surfaces of every static object of a scene.
+#[derive(Clone, Debug, Default)]
+pub struct Surfaces {
+    corners: Vec<DVec3>,
+    surfaces: Vec<Surface>,
+    clusters: Vec<Cluster>,
+    /// Per object id, its clusters (none for movable objects: they are
+    /// culled where they are now, and drawn nowhere).
+    by_object: Vec<Range<u32>>,
+    /// Per object id, whether its opaque triangles close up (every edge is
+    /// shared by an even number of them): seen from outside its box, its
+    /// back faces then lie behind its front faces and need not be drawn.
+    closed: Vec<bool>,
+}
+
+/// How far a polygon's triangles may lie from its plane, in `f32` ulps of
+/// its largest coordinate: the merge keeps corners within
+/// [`PLANARITY_ULPS`] of it; twice that covers the plane's own rounding.
+pub fn thickness(corners: &[DVec3]) -> f64 {
+    let size = corners
+        .iter()
+        .map(|v| v.abs().max_element())
+        .fold(0.0, f64::max);
+    2.0 * PLANARITY_ULPS * f32::EPSILON as f64 * size
+}
+
+/// A sphere holding `corners`: their mean and farthest distance from it.
+fn sphere(corners: &[DVec3]) -> (DVec3, f64) {
+    let centre = corners.iter().sum::<DVec3>() / corners.len() as f64;
+    let radius = corners
+        .iter()
+        .map(|c| c.distance(centre))
+        .fold(0.0, f64::max);
+    (centre, radius)
+}
+
+/// Whether `o`'s opaque triangles close up: every edge (its two ends'
+/// exact positions, either way round) is shared by an even number of them.
+fn is_closed(scene: &Scene, o: &Object) -> bool {
+    let key = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
+    let mut odd: FxHashSet<([u32; 3], [u32; 3])> = FxHashSet::default();
+    for r in o.opaque_ranges() {
+        for t in &scene.triangles()[r.start as usize..r.end as usize] {
+            for i in 0..3 {
+                let (a, b) = (key(t[i]), key(t[(i + 1) % 3]));
+                if a == b {
+                    continue;
+                }
+                let e = if a < b { (a, b) } else { (b, a) };
+                if !odd.remove(&e) {
+                    odd.insert(e);
+                }
+            }
+        }
+    }
+    odd.is_empty() && o.triangle_count() > 0
+}
+
+/// One object's polygons with their planes and spheres, split into
+/// clusters by halving along the longest axis of their centres.
+struct ObjectSurfaces {
+    polygons: Vec<(Vec<DVec3>, Plane, DVec3, f64)>,
+    /// Ranges of `polygons`, after it was reordered cluster by cluster.
+    clusters: Vec<Range<usize>>,
+    closed: bool,
+}
+
+fn split(polygons: &mut [(Vec<DVec3>, Plane, DVec3, f64)], at: usize, out: &mut Vec<Range<usize>>) {
+    if polygons.len() <= CLUSTER {
+        // Largest first, so a frame stops at the first too small.
+        polygons.sort_by(|a, b| b.3.total_cmp(&a.3));
+        out.push(at..at + polygons.len());
+        return;
+    }
+    let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
+    for p in polygons.iter() {
+        (lo, hi) = (lo.min(p.2), hi.max(p.2));
+    }
+    let e = hi - lo;
+    let axis = if e.x >= e.y && e.x >= e.z { 0 } else if e.y >= e.z { 1 } else { 2 };
+    let mid = polygons.len() / 2;
+    polygons.select_nth_unstable_by(mid, |a, b| a.2[axis].total_cmp(&b.2[axis]));
+    let (left, right) = polygons.split_at_mut(mid);
+    split(left, at, out);
+    split(right, at + mid, out);
+}
+
+impl Surfaces {
+    /// The surfaces of `scene`'s static objects.
+    pub fn build(scene: &Scene) -> Surfaces {
+        let per_object: Vec<ObjectSurfaces> = scene
+            .objects()
+            .par_iter()
+            .map(|o| {
+                if !o.is_static() {
+                    return ObjectSurfaces {
+                        polygons: Vec::new(),
+                        clusters: Vec::new(),
+                        closed: false,
+                    };
+                }
+                let mut polygons: Vec<_> = object_polygons(scene, o)
+                    .into_iter()
+                    .filter_map(|p| {
+                        let plane = p.plane()?;
+                        let (centre, radius) = sphere(&p.vertices);
+                        Some((p.vertices, plane, centre, radius))
+                    })
+                    .collect();
+                let mut clusters = Vec::new();
+                split(&mut polygons, 0, &mut clusters);
+                ObjectSurfaces {
+                    polygons,
+                    clusters,
+                    closed: is_closed(scene, o),
+                }
+            })
+            .collect();
+        let mut out = Surfaces::default();
+        for object in per_object {
+            out.closed.push(object.closed);
+            let first = out.clusters.len() as u32;
+            for range in object.clusters {
+                let start = out.surfaces.len() as u32;
+                let mut bounds = Aabb::EMPTY;
+                let mut largest = 0.0f64;
+                for (corners, plane, centre, radius) in &object.polygons[range] {
+                    let at = out.corners.len() as u32;
+                    out.surfaces.push(Surface {
+                        corners: at..at + corners.len() as u32,
+                        plane: *plane,
+                        thickness: thickness(corners),
+                        centre: *centre,
+                        radius: *radius,
+                    });
+                    out.corners.extend_from_slice(corners);
+                    bounds.merge(&Aabb::enclosing(centre - *radius, centre + *radius));
+                    largest = largest.max(*radius);
+                }
+                out.clusters.push(Cluster {
+                    surfaces: start..out.surfaces.len() as u32,
+                    bounds,
+                    largest,
+                });
+            }
+            out.by_object.push(first..out.clusters.len() as u32);
+        }
+        out
+    }
+
+    /// The clusters of object `id`.
+    pub fn clusters_of(&self, id: u32) -> &[Cluster] {
+        let r = &self.by_object[id as usize];
+        &self.clusters[r.start as usize..r.end as usize]
+    }
+
+    /// The surfaces of cluster `c`, largest first.
+    pub fn of_cluster(&self, c: &Cluster) -> &[Surface] {
+        &self.surfaces[c.surfaces.start as usize..c.surfaces.end as usize]
+    }
+
+    /// Whether object `id`'s surfaces close up.
+    pub fn is_closed(&self, id: u32) -> bool {
+        self.closed[id as usize]
+    }
+
+    /// The corners of `s`.
+    pub fn corners(&self, s: &Surface) -> &[DVec3] {
+        &self.corners[s.corners.start as usize..s.corners.end as usize]
+    }
+
+    /// Number of surfaces.
+    pub fn len(&self) -> usize {
+        self.surfaces.len()
+    }
+}

@@ -1,0 +1,250 @@
+//! `raster`'s known answers — a box behind a wall, seen through a one-pixel
+//! slit, behind a see-through wall, a wall edge-on, an eye on a wall's
+//! plane, boxes and walls across the near plane — and its SIMD and scalar
+//! paths answering alike on random scenes. Its walks over generated and
+//! real scenes are in the conservativeness table (tests/conservative.rs),
+//! its extremes in tests/ddo.rs and tests/extremes (every method is checked
+//! there).
+
+mod common;
+
+use std::sync::Arc;
+
+use glam::{DVec3, Vec3};
+use proptest::prelude::*;
+use pvsd::cull::{MethodSpec, SceneMethods, View, VisibleSet};
+use pvsd::geom::Camera;
+use pvsd::scene::{Scene, SceneBuilder};
+use pvsd::truth::Truth;
+
+const VIEWPORT: [u32; 2] = [512, 320];
+
+/// A closed box's triangles.
+fn solid(min: Vec3, max: Vec3) -> Vec<[DVec3; 3]> {
+    let (a, b) = (min.as_dvec3(), max.as_dvec3());
+    let c = |i: usize| {
+        DVec3::new(
+            if i & 1 == 0 { a.x } else { b.x },
+            if i & 2 == 0 { a.y } else { b.y },
+            if i & 4 == 0 { a.z } else { b.z },
+        )
+    };
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    quads
+        .iter()
+        .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
+        .collect()
+}
+
+/// The rectangle `x0..x1 × y0..y1` in the plane `z`.
+fn rect(x0: f64, x1: f64, y0: f64, y1: f64, z: f64) -> Vec<[DVec3; 3]> {
+    let p = |x, y| DVec3::new(x, y, z);
+    vec![
+        [p(x0, y0), p(x1, y0), p(x1, y1)],
+        [p(x0, y0), p(x1, y1), p(x0, y1)],
+    ]
+}
+
+/// A 10 × 10 wall in the plane z = 0 (with a vertical slit `x0..x1` left
+/// open when asked), object 0, and a unit box 2–3 units behind it, object 1.
+fn wall_and_box(slit: Option<(f64, f64)>, see_through: bool) -> Arc<Scene> {
+    let mut b = SceneBuilder::new("wall");
+    b.begin_object("wall", None);
+    match slit {
+        None => b.add_triangles(rect(-5.0, 5.0, -5.0, 5.0, 0.0), see_through),
+        Some((x0, x1)) => {
+            b.add_triangles(rect(-5.0, x0, -5.0, 5.0, 0.0), see_through);
+            b.add_triangles(rect(x1, 5.0, -5.0, 5.0, 0.0), see_through);
+        }
+    }
+    b.begin_object("box", None);
+    b.add_triangles(
+        solid(Vec3::new(-0.5, -0.5, -3.0), Vec3::new(0.5, 0.5, -2.0)),
+        false,
+    );
+    Arc::new(b.finish())
+}
+
+fn camera(eye: DVec3, forward: DVec3) -> Camera {
+    Camera {
+        eye,
+        forward,
+        viewport: VIEWPORT,
+        ..Camera::default()
+    }
+}
+
+/// `raster`'s answer with `options`.
+fn raster(methods: &SceneMethods, cam: Camera, options: &str) -> Vec<u32> {
+    let spec: MethodSpec = if options.is_empty() {
+        "raster".parse().unwrap()
+    } else {
+        format!("raster:{options}").parse().unwrap()
+    };
+    let view = View::new(cam, methods.scene()).unwrap();
+    let mut out = VisibleSet::new();
+    methods.cull_once(&spec, &view, &mut out).unwrap();
+    out.ids().to_vec()
+}
+
+const OPTIONS: [&str; 4] = ["", "cell=2", "simd=false", "splits=0:min_size=0"];
+
+/// Every option set's answer holds what truth sees, and is `expected`.
+fn check(scene: &Arc<Scene>, cam: Camera, expected: &[u32]) {
+    let methods = SceneMethods::prepare(scene.clone());
+    let truth = Truth::render(scene, &cam).unwrap().visible();
+    for options in OPTIONS {
+        let got = raster(&methods, cam, options);
+        for v in &truth {
+            assert!(got.contains(v), "{v} dropped with {options:?} from {cam:?}");
+        }
+        assert_eq!(got, expected, "with {options:?} from {cam:?}");
+    }
+}
+
+#[test]
+fn a_box_behind_a_wall_is_culled() {
+    let scene = wall_and_box(None, false);
+    check(&scene, camera(DVec3::new(0.3, 0.2, 10.0), -DVec3::Z), &[0]);
+    // From behind, the box stands in front of the wall.
+    check(
+        &scene,
+        camera(DVec3::new(0.3, 0.2, -10.0), DVec3::Z),
+        &[0, 1],
+    );
+}
+
+#[test]
+fn a_box_seen_through_a_one_pixel_slit_is_kept() {
+    // Pixel column 256's centres cross the wall's plane, 10 units away,
+    // at x = (256.5 / 256 − 1) · tan 30° · 1.6 · 10; columns are 0.036
+    // units apart there. The slit is 0.8 of a column wide around it:
+    // exactly one column of pixel centres sees through.
+    let half_width = (30f64.to_radians().tan() * 1.6) * 10.0;
+    let x = (256.5 / 256.0 - 1.0) * half_width;
+    let column = 2.0 * half_width / 512.0;
+    let scene = wall_and_box(Some((x - 0.4 * column, x + 0.4 * column)), false);
+    let cam = camera(DVec3::new(0.0, 0.0, 10.0), -DVec3::Z);
+    let truth = Truth::render(&scene, &cam).unwrap().visible();
+    assert_eq!(truth, vec![0, 1], "truth sees the box through the slit");
+    check(&scene, cam, &[0, 1]);
+    // Moved off the column's centres, the slit shows nothing (cell=2
+    // covers two columns, so it is left out here).
+    let shut = wall_and_box(Some((x + 0.1 * column, x + 0.45 * column)), false);
+    assert_eq!(Truth::render(&shut, &cam).unwrap().visible(), vec![0]);
+    let methods = SceneMethods::prepare(shut);
+    assert_eq!(raster(&methods, cam, ""), vec![0]);
+}
+
+#[test]
+fn a_see_through_wall_hides_nothing() {
+    check(
+        &wall_and_box(None, true),
+        camera(DVec3::new(0.0, 0.0, 10.0), -DVec3::Z),
+        &[0, 1],
+    );
+}
+
+#[test]
+fn a_wall_edge_on_and_an_eye_on_its_plane_hide_nothing() {
+    let scene = wall_and_box(None, false);
+    // Looking along the wall's plane from outside it, at the box: the
+    // wall covers no pixel centre (truth does not see it either).
+    let eye = DVec3::new(20.0, 0.0, 0.0);
+    check(&scene, camera(eye, DVec3::new(0.0, 0.0, -2.5) - eye), &[1]);
+    // The eye in the wall's plane, inside its outline, looking at the box:
+    // the wall is seen edge-on too.
+    let eye = DVec3::new(0.1, 0.2, 0.0);
+    check(&scene, camera(eye, DVec3::new(0.0, 0.0, -2.5) - eye), &[1]);
+}
+
+#[test]
+fn nothing_nearer_than_the_near_plane_hides_and_a_box_across_it_stays() {
+    let mut b = SceneBuilder::new("near");
+    b.begin_object("wall", None);
+    b.add_triangles(rect(-5.0, 5.0, -5.0, 5.0, 9.97), false);
+    b.begin_object("box", None);
+    b.add_triangles(
+        solid(Vec3::new(-0.5, -0.5, 9.5), Vec3::new(0.5, 0.5, 9.95)),
+        false,
+    );
+    b.begin_object("far", None);
+    b.add_triangles(
+        solid(Vec3::new(-0.5, -0.5, -3.0), Vec3::new(0.5, 0.5, -2.0)),
+        false,
+    );
+    let scene = Arc::new(b.finish());
+    // The wall lies 0.03 from the eye, inside the near distance (0.1): not
+    // drawn by truth, it hides nothing; the box reaches across the near plane.
+    let cam = Camera {
+        near: 0.1,
+        ..camera(DVec3::new(0.0, 0.0, 10.0), -DVec3::Z)
+    };
+    check(&scene, cam, &[1]);
+}
+
+/// Some closed boxes and walls at random (a few shared-plane and touching).
+fn random_scene(seed: u64) -> Arc<Scene> {
+    use rand::Rng;
+    let mut r = common::rng(seed);
+    let mut b = SceneBuilder::new("random");
+    for i in 0..12 {
+        b.begin_object(format!("o{i}"), None);
+        let lo = Vec3::new(
+            r.random_range(-10.0..10.0),
+            r.random_range(-3.0..3.0),
+            r.random_range(-10.0..10.0),
+        );
+        let size = Vec3::new(
+            r.random_range(0.1..6.0),
+            r.random_range(0.1..4.0),
+            r.random_range(0.1..6.0),
+        );
+        if i % 3 == 0 {
+            let z = lo.z as f64;
+            b.add_triangles(
+                rect(
+                    lo.x as f64,
+                    (lo + size).x as f64,
+                    lo.y as f64,
+                    (lo + size).y as f64,
+                    z,
+                ),
+                false,
+            );
+        } else {
+            b.add_triangles(solid(lo, lo + size), false);
+        }
+    }
+    Arc::new(b.finish())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// The AVX2 and the plain loops give the same answer, and both hold
+    /// what truth sees.
+    #[test]
+    fn simd_and_scalar_answer_alike(seed in 0u64..1000, yaw in 0.0f64..6.28, pitch in -0.8f64..0.8) {
+        let scene = random_scene(seed);
+        let methods = SceneMethods::prepare(scene.clone());
+        let eye = DVec3::new(yaw.sin() * 16.0, pitch * 6.0, yaw.cos() * 16.0);
+        let cam = camera(eye, DVec3::new(0.0, pitch * 2.0, 0.0) - eye);
+        let truth = Truth::render(&scene, &cam).unwrap().visible();
+        for cell in ["cell=1", "cell=2"] {
+            let fast = raster(&methods, cam, cell);
+            let plain = raster(&methods, cam, &format!("{cell}:simd=false"));
+            prop_assert_eq!(&fast, &plain);
+            for v in &truth {
+                prop_assert!(fast.contains(v), "{} dropped", v);
+            }
+        }
+    }
+}
