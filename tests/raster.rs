@@ -232,7 +232,7 @@ proptest! {
     /// The AVX2 and the plain loops give the same answer, and both hold
     /// what truth sees.
     #[test]
-    fn simd_and_scalar_answer_alike(seed in 0u64..1000, yaw in 0.0f64..6.28, pitch in -0.8f64..0.8) {
+    fn simd_and_scalar_answer_alike(seed in 0u64..1000, yaw in 0.0f64..std::f64::consts::TAU, pitch in -0.8f64..0.8) {
         let scene = random_scene(seed);
         let methods = SceneMethods::prepare(scene.clone());
         let eye = DVec3::new(yaw.sin() * 16.0, pitch * 6.0, yaw.cos() * 16.0);
