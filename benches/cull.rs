@@ -10,16 +10,37 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use pvsd::cull::{CullJob, MethodSpec, SceneMethods, View};
 use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
-use pvsd::scene::{Scene, load_slice};
+use pvsd::scene::{Scene, load_path, load_slice};
 
 /// Times each of `specs` on the frames of one walk through `scene`.
 fn bench_walk(c: &mut Criterion, group: &str, scene: Arc<Scene>, kind: WalkKind, specs: &[&str]) {
-    let methods = SceneMethods::prepare(scene.clone());
     let params = WalkParams {
         kind,
         frames: 60,
         ..WalkParams::default()
     };
+    bench_frames(c, group, scene, params, specs);
+}
+
+/// [`bench_walk`] over 60 unrelated views at 512×320.
+fn bench_views(c: &mut Criterion, group: &str, scene: Arc<Scene>, specs: &[&str]) {
+    let params = WalkParams {
+        kind: WalkKind::Views,
+        frames: 60,
+        viewport: [512, 320],
+        ..WalkParams::default()
+    };
+    bench_frames(c, group, scene, params, specs);
+}
+
+fn bench_frames(
+    c: &mut Criterion,
+    group: &str,
+    scene: Arc<Scene>,
+    params: WalkParams,
+    specs: &[&str],
+) {
+    let methods = SceneMethods::prepare(scene.clone());
     let views: Vec<View> = walk(&scene, &params)
         .unwrap()
         .into_iter()
@@ -54,6 +75,7 @@ fn office_walk(c: &mut Criterion) {
         "occlusion_tree:k=32",
         "occlusion_tree:k=32:variant=fmc",
         "supporting_planes:k=32",
+        "raster",
     ];
     bench_walk(
         c,
@@ -82,5 +104,35 @@ fn city10k_walk(c: &mut Criterion) {
     );
 }
 
-criterion_group!(benches, office_walk, city10k_walk);
+/// `raster` against the object-space methods on unrelated random views
+/// (`pvsd eval --walk views`'s frames) of the scenes issue 16 measured
+/// Masked Occlusion Culling on, at its 512×320.
+fn raster_views(c: &mut Criterion) {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes");
+    let office_glb = office(&OfficeOptions::default()).to_glb();
+    let city_glb = city(&CityOptions {
+        buildings: 1000,
+        ..CityOptions::default()
+    })
+    .to_glb();
+    let scenes = [
+        load_path(&shared.join("Sponza/Sponza.gltf")).unwrap(),
+        load_path(&shared.join("2CylinderEngine/2CylinderEngine.gltf")).unwrap(),
+        load_slice("office", &office_glb, None, Path::new("office.glb")).unwrap(),
+        load_slice("city1k", &city_glb, None, Path::new("city1k.glb")).unwrap(),
+    ];
+    let specs = [
+        "frustum",
+        "occlusion_tree",
+        "supporting_planes:k=50",
+        "raster",
+        "raster:cell=1",
+    ];
+    for scene in scenes {
+        let group = format!("{}_views_frame", scene.id);
+        bench_views(c, &group, Arc::new(scene), &specs);
+    }
+}
+
+criterion_group!(benches, office_walk, city10k_walk, raster_views);
 criterion_main!(benches);

@@ -55,18 +55,29 @@ fn rect(x0: f64, x1: f64, y0: f64, y1: f64, z: f64) -> Vec<[DVec3; 3]> {
 /// A 10 × 10 wall in the plane z = 0 (with a vertical slit `x0..x1` left
 /// open when asked), object 0, and a unit box 2–3 units behind it, object 1.
 fn wall_and_box(slit: Option<(f64, f64)>, see_through: bool) -> Arc<Scene> {
+    wall_and_box_at(slit, see_through, DVec3::ZERO)
+}
+
+/// [`wall_and_box`] moved by `offset`.
+fn wall_and_box_at(slit: Option<(f64, f64)>, see_through: bool, offset: DVec3) -> Arc<Scene> {
+    let shift = |tris: Vec<[DVec3; 3]>| -> Vec<[DVec3; 3]> {
+        tris.into_iter().map(|t| t.map(|v| v + offset)).collect()
+    };
     let mut b = SceneBuilder::new("wall");
     b.begin_object("wall", None);
     match slit {
-        None => b.add_triangles(rect(-5.0, 5.0, -5.0, 5.0, 0.0), see_through),
+        None => b.add_triangles(shift(rect(-5.0, 5.0, -5.0, 5.0, 0.0)), see_through),
         Some((x0, x1)) => {
-            b.add_triangles(rect(-5.0, x0, -5.0, 5.0, 0.0), see_through);
-            b.add_triangles(rect(x1, 5.0, -5.0, 5.0, 0.0), see_through);
+            b.add_triangles(shift(rect(-5.0, x0, -5.0, 5.0, 0.0)), see_through);
+            b.add_triangles(shift(rect(x1, 5.0, -5.0, 5.0, 0.0)), see_through);
         }
     }
     b.begin_object("box", None);
     b.add_triangles(
-        solid(Vec3::new(-0.5, -0.5, -3.0), Vec3::new(0.5, 0.5, -2.0)),
+        shift(solid(
+            Vec3::new(-0.5, -0.5, -3.0),
+            Vec3::new(0.5, 0.5, -2.0),
+        )),
         false,
     );
     Arc::new(b.finish())
@@ -94,7 +105,7 @@ fn raster(methods: &SceneMethods, cam: Camera, options: &str) -> Vec<u32> {
     out.ids().to_vec()
 }
 
-const OPTIONS: [&str; 4] = ["", "cell=2", "simd=false", "splits=0:min_size=0"];
+const OPTIONS: [&str; 4] = ["", "cell=1", "simd=false", "splits=0:min_size=0"];
 
 /// Every option set's answer holds what truth sees, and is `expected`.
 fn check(scene: &Arc<Scene>, cam: Camera, expected: &[u32]) {
@@ -135,12 +146,15 @@ fn a_box_seen_through_a_one_pixel_slit_is_kept() {
     let truth = Truth::render(&scene, &cam).unwrap().visible();
     assert_eq!(truth, vec![0, 1], "truth sees the box through the slit");
     check(&scene, cam, &[0, 1]);
-    // Moved off the column's centres, the slit shows nothing (cell=2
-    // covers two columns, so it is left out here).
+    // Moved off the column's centres, the slit shows nothing, and at the
+    // viewport's own resolution the box is culled. (A cell of 2×2 pixels
+    // straddles the slit, and neither half of the wall covers all of its
+    // centres: there the box stays.)
     let shut = wall_and_box(Some((x + 0.1 * column, x + 0.45 * column)), false);
     assert_eq!(Truth::render(&shut, &cam).unwrap().visible(), vec![0]);
     let methods = SceneMethods::prepare(shut);
-    assert_eq!(raster(&methods, cam, ""), vec![0]);
+    assert_eq!(raster(&methods, cam, "cell=1"), vec![0]);
+    assert_eq!(raster(&methods, cam, "cell=2"), vec![0, 1]);
 }
 
 #[test]
@@ -188,6 +202,55 @@ fn nothing_nearer_than_the_near_plane_hides_and_a_box_across_it_stays() {
         ..camera(DVec3::new(0.0, 0.0, 10.0), -DVec3::Z)
     };
     check(&scene, cam, &[1]);
+}
+
+/// DESIGN's extremes on the wall and box: moved 1e6 and 1e7 away, eyes
+/// on the box's corner and inside it, looking straight down, aspect 0.01
+/// and 100, near 1e-6 and far 1e9, fov 0.01° and 179°. Every option set
+/// keeps what truth sees, and the wall still hides the box from in front.
+#[test]
+fn extremes_of_the_wall_and_box() {
+    for offset in [
+        DVec3::ZERO,
+        DVec3::new(1e6, -1e6, 1e6),
+        DVec3::new(1e7, 1e7, -1e7),
+    ] {
+        let scene = wall_and_box_at(None, false, offset);
+        let methods = SceneMethods::prepare(scene.clone());
+        let at = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) + offset;
+        let box_centre = at(0.0, 0.0, -2.5);
+        let mut cams = vec![
+            camera(at(0.5, 0.5, -2.0), at(0.0, 0.0, 10.0) - at(0.5, 0.5, -2.0)),
+            camera(at(0.1, 0.2, -2.4), DVec3::Z),
+            Camera {
+                up: DVec3::Z,
+                ..camera(at(0.0, 20.0, -2.5), -DVec3::Y)
+            },
+            Camera {
+                near: 1e-6,
+                far: 1e9,
+                ..camera(at(0.0, 0.0, 10.0), -DVec3::Z)
+            },
+        ];
+        for (aspect, fov) in [(0.01, 60.0), (100.0, 60.0), (1.6, 0.01), (1.6, 179.0)] {
+            cams.push(Camera {
+                aspect,
+                fov_y_deg: fov,
+                ..camera(at(3.0, 1.0, -12.0), box_centre - at(3.0, 1.0, -12.0))
+            });
+        }
+        for cam in cams {
+            let truth = Truth::render(&scene, &cam).unwrap().visible();
+            for options in OPTIONS {
+                let got = raster(&methods, cam, options);
+                for v in &truth {
+                    assert!(got.contains(v), "{v} dropped with {options:?} from {cam:?}");
+                }
+            }
+        }
+        let front = camera(at(0.3, 0.2, 10.0), -DVec3::Z);
+        assert_eq!(raster(&methods, front, ""), vec![0], "at {offset}");
+    }
 }
 
 /// Some closed boxes and walls at random (a few shared-plane and touching).
