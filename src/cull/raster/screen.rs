@@ -55,14 +55,14 @@ pub struct Scratch {
 #[inline]
 fn ceil(x: f64) -> i64 {
     let i = x as i64;
-    if (i as f64) < x { i + 1 } else { i }
+    if (i as f64) < x { i.saturating_add(1) } else { i }
 }
 
 /// `⌊x⌋` for finite `x`, saturating.
 #[inline]
 fn floor(x: f64) -> i64 {
     let i = x as i64;
-    if (i as f64) > x { i - 1 } else { i }
+    if (i as f64) > x { i.saturating_sub(1) } else { i }
 }
 
 /// What a box covers on screen.
