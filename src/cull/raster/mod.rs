@@ -101,11 +101,11 @@ const CELL: Ranged<usize> = Ranged {
 
 /// A visible object's surfaces narrower than this on screen (pixels,
 /// across their bounding sphere) are not drawn: they would fill few cells
-/// for the cost of setting them up.
+/// for the cost of setting them up (docs/raster.md measures 4 to 32).
 const MIN_SIZE: Ranged<f64> = Ranged {
     key: "min_size",
     noun: "a number of pixels",
-    default: 4.0,
+    default: 16.0,
     min: 0.0,
     max: 1e6,
 };
@@ -174,6 +174,8 @@ struct Canvas {
     drawn: Vec<u32>,
     frame: u32,
     stack: Vec<(u32, PlaneMask)>,
+    /// An object's clusters to draw, with their scale, nearest first.
+    order: Vec<(f64, u32)>,
     /// How many times a box that is not hidden whole is halved and tried again.
     splits: u32,
     /// Polygons this frame may still draw.
@@ -188,6 +190,7 @@ impl Canvas {
             drawn: Vec::new(),
             frame: 0,
             stack: Vec::new(),
+            order: Vec::new(),
             splits: 0,
             budget: 0,
         }
@@ -302,18 +305,30 @@ impl RasterCulling {
             && bounds.distance_to(eye) > 0.0
             && screen.pixels_per_unit(bounds).is_finite();
         let planes = view.frustum().planes();
-        for cluster in self.surfaces.clusters_of(id) {
+        // Clusters on view and large enough, nearest first: a near cluster
+        // drawn lets the hidden test skip those behind it, and a budget
+        // goes to what hides the most.
+        let clusters = self.surfaces.clusters_of(id);
+        let mut order = std::mem::take(&mut canvas.order);
+        order.clear();
+        for (i, cluster) in clusters.iter().enumerate() {
+            let scale = screen.pixels_per_unit(&cluster.bounds);
+            if 2.0 * cluster.largest * scale >= min_size
+                && view.frustum().classify(&cluster.bounds, ALL_PLANES).0 != Side::Outside
+            {
+                order.push((scale, i as u32));
+            }
+        }
+        order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+        for &(scale, i) in &order {
+            let cluster = &clusters[i as usize];
             if canvas.budget == 0 {
-                return;
+                break;
             }
             // Drawing fewer surfaces only hides less: skip clusters and
-            // surfaces off the view, too small, or hidden already, and
+            // surfaces hidden already, too small or off the view, and
             // back faces of closed objects.
-            let scale = screen.pixels_per_unit(&cluster.bounds);
-            if 2.0 * cluster.largest * scale < min_size
-                || view.frustum().classify(&cluster.bounds, ALL_PLANES).0 == Side::Outside
-                || canvas.visibility(screen, &cluster.bounds) == Visibility::Invisible
-            {
+            if canvas.visibility(screen, &cluster.bounds) == Visibility::Invisible {
                 continue;
             }
             for s in self.surfaces.of_cluster(cluster) {
@@ -338,11 +353,12 @@ impl RasterCulling {
                 if drawn {
                     canvas.budget -= 1;
                     if canvas.budget == 0 {
-                        return;
+                        break;
                     }
                 }
             }
         }
+        canvas.order = order;
     }
 
     /// The walk: front to back, nodes and objects tested against the
