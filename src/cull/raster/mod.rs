@@ -18,14 +18,16 @@
 //!
 //! **Per frame.** First the buffer gets what is likely to hide the most:
 //! the objects a session's last frame found visible (the first of the two
-//! passes of modern GPU culling), and the `k` best of the scene's large
-//! occluders by area-angle (Bittner et al. §3) within `lambda` of the eye.
-//! Then the walk: near child first, a node outside the frustum or hidden
-//! is dropped with its subtree; in a leaf, each object's part in the cell
-//! is tested, and an object found visible is added to the answer and its
-//! surfaces drawn at once (those at least `min_size` pixels across), so
-//! that what it hides farther on is culled — the second pass. Avatars and
-//! movable objects are tested last, against the whole buffer.
+//! passes of modern GPU culling). Then the walk: near child first, a node
+//! outside the frustum or hidden is dropped with its subtree; in a leaf,
+//! each object's part in the cell is tested, and an object found visible
+//! is added to the answer and its surfaces drawn at once (nearest cluster
+//! first, those at least `min_size` pixels across, up to `budget` a
+//! frame), so that what it hides farther on is culled — the second pass.
+//! (Drawing the scene's large occluders first, as the object-space
+//! methods pick them, was measured slower on every scene: the walk draws
+//! them when it reaches them.) Avatars and movable objects are tested
+//! last, against the whole buffer.
 //!
 //! **Why it never drops a visible object.** Ground truth calls an object
 //! visible when it is the nearest opaque surface at some pixel centre of
