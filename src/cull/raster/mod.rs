@@ -142,7 +142,14 @@ const OPTIONS: [&str; 5] = [
 
 fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
     let scene = p.scene().clone();
+    let started = std::time::Instant::now();
     let surfaces = Surfaces::build(&scene);
+    tracing::info!(
+        scene = %scene.id,
+        polygons = surfaces.len(),
+        ms = started.elapsed().as_millis() as u64,
+        "merged raster surfaces"
+    );
     if surfaces.len() == 0 {
         return Err("the scene has no opaque surface to draw".into());
     }
