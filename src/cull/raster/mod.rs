@@ -71,7 +71,7 @@ use std::sync::{Arc, Mutex};
 use buffer::DepthBuffer;
 pub use kernel::Kernel;
 use screen::{Footprint, Scratch, Screen};
-use surfaces::Surfaces;
+use surfaces::{Outside, Surfaces};
 
 use super::occlusion::Visibility;
 use super::occlusion::hierarchy;
@@ -308,11 +308,18 @@ impl RasterCulling {
         canvas.drawn[id as usize] = canvas.frame;
         let eye = view.eye();
         let bounds = &self.scene.objects()[id as usize].bounds;
-        // A closed object's back faces lie behind its front faces, unless
-        // those are cut away by the near plane (or the eye is inside).
-        let front_only = self.surfaces.is_closed(id)
-            && bounds.distance_to(eye) > 0.0
-            && screen.pixels_per_unit(bounds).is_finite();
+        // A closed object's faces turned away lie behind those turned
+        // towards the eye, unless those are cut away by the near plane (or
+        // the eye is inside): then only the ones turned towards it.
+        let away = if bounds.distance_to(eye) > 0.0 && screen.pixels_per_unit(bounds).is_finite() {
+            match self.surfaces.outside(id) {
+                Outside::Front => -1.0,
+                Outside::Back => 1.0,
+                Outside::Unknown => 0.0,
+            }
+        } else {
+            0.0
+        };
         let planes = view.frustum().planes();
         // Clusters on view and large enough, nearest first: a near cluster
         // drawn lets the hidden test skip those behind it, and a budget
@@ -346,7 +353,7 @@ impl RasterCulling {
                 if 2.0 * s.radius * scale < min_size {
                     break;
                 }
-                if (front_only && s.plane.signed_distance(eye) < 0.0)
+                if away * s.plane.signed_distance(eye) > 0.0
                     || planes.iter().any(|p| p.signed_distance(s.centre) < -s.radius)
                     || screen.pixels_across(s.centre, s.radius) < min_size
                 {

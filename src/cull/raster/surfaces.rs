@@ -11,7 +11,7 @@ use std::ops::Range;
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
-use rustc_hash::FxHashSet;
+use rustc_hash::FxHashMap;
 
 use crate::cull::occluder::{PLANARITY_ULPS, object_polygons};
 use crate::geom::{Aabb, Plane};
@@ -51,10 +51,8 @@ pub struct Surfaces {
     /// Per object id, its clusters (none for movable objects: they are
     /// culled where they are now, and drawn nowhere).
     by_object: Vec<Range<u32>>,
-    /// Per object id, whether its opaque triangles close up (every edge is
-    /// shared by an even number of them): seen from outside its box, its
-    /// back faces then lie behind its front faces and need not be drawn.
-    closed: Vec<bool>,
+    /// Per object id, which side of its surfaces is outside.
+    outside: Vec<Outside>,
 }
 
 /// How far a polygon's triangles may lie from its plane, in `f32` ulps of
@@ -78,26 +76,49 @@ fn sphere(corners: &[DVec3]) -> (DVec3, f64) {
     (centre, radius)
 }
 
-/// Whether `o`'s opaque triangles close up: every edge (its two ends'
-/// exact positions, either way round) is shared by an even number of them.
-fn is_closed(scene: &Scene, o: &Object) -> bool {
+/// Which side of an object's surfaces is its outside, where its opaque
+/// triangles close up consistently: then, seen from outside its box, the
+/// faces turned away from the eye lie behind faces turned towards it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Outside {
+    /// Not closed, or not wound one way: every face is drawn.
+    Unknown,
+    /// Normals (counter-clockwise winding) point out.
+    Front,
+    /// Normals point in.
+    Back,
+}
+
+/// [`Outside`] for `o`: every directed edge (its ends' exact positions)
+/// is matched by as many running the other way, and the sign of the
+/// enclosed volume tells which way the winding turns.
+fn outside(scene: &Scene, o: &Object) -> Outside {
     let key = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
-    let mut odd: FxHashSet<([u32; 3], [u32; 3])> = FxHashSet::default();
+    let mut balance: FxHashMap<([u32; 3], [u32; 3]), i32> = FxHashMap::default();
+    let centre = o.bounds.center().as_dvec3();
+    let mut volume = 0.0f64;
     for r in o.opaque_ranges() {
         for t in &scene.triangles()[r.start as usize..r.end as usize] {
+            let [a, b, c] = t.map(|v| v.as_dvec3() - centre);
+            volume += a.dot(b.cross(c));
             for i in 0..3 {
                 let (a, b) = (key(t[i]), key(t[(i + 1) % 3]));
-                if a == b {
-                    continue;
-                }
-                let e = if a < b { (a, b) } else { (b, a) };
-                if !odd.remove(&e) {
-                    odd.insert(e);
+                if a != b {
+                    let (e, d) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
+                    *balance.entry(e).or_insert(0) += d;
                 }
             }
         }
     }
-    odd.is_empty() && o.triangle_count() > 0
+    if o.triangle_count() == 0 || balance.values().any(|&d| d != 0) {
+        Outside::Unknown
+    } else if volume > 0.0 {
+        Outside::Front
+    } else if volume < 0.0 {
+        Outside::Back
+    } else {
+        Outside::Unknown
+    }
 }
 
 /// One object's polygons with their planes and spheres, split into
@@ -106,7 +127,7 @@ struct ObjectSurfaces {
     polygons: Vec<(Vec<DVec3>, Plane, DVec3, f64)>,
     /// Ranges of `polygons`, after it was reordered cluster by cluster.
     clusters: Vec<Range<usize>>,
-    closed: bool,
+    outside: Outside,
 }
 
 fn split(polygons: &mut [(Vec<DVec3>, Plane, DVec3, f64)], at: usize, out: &mut Vec<Range<usize>>) {
@@ -140,7 +161,7 @@ impl Surfaces {
                     return ObjectSurfaces {
                         polygons: Vec::new(),
                         clusters: Vec::new(),
-                        closed: false,
+                        outside: Outside::Unknown,
                     };
                 }
                 let mut polygons: Vec<_> = object_polygons(scene, o)
@@ -156,13 +177,13 @@ impl Surfaces {
                 ObjectSurfaces {
                     polygons,
                     clusters,
-                    closed: is_closed(scene, o),
+                    outside: outside(scene, o),
                 }
             })
             .collect();
         let mut out = Surfaces::default();
         for object in per_object {
-            out.closed.push(object.closed);
+            out.outside.push(object.outside);
             let first = out.clusters.len() as u32;
             for range in object.clusters {
                 let start = out.surfaces.len() as u32;
@@ -203,9 +224,9 @@ impl Surfaces {
         &self.surfaces[c.surfaces.start as usize..c.surfaces.end as usize]
     }
 
-    /// Whether object `id`'s surfaces close up.
-    pub fn is_closed(&self, id: u32) -> bool {
-        self.closed[id as usize]
+    /// Which side of object `id`'s surfaces is its outside.
+    pub fn outside(&self, id: u32) -> Outside {
+        self.outside[id as usize]
     }
 
     /// The corners of `s`.
