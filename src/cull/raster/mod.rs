@@ -69,7 +69,7 @@ mod surfaces;
 use std::sync::{Arc, Mutex};
 
 use buffer::DepthBuffer;
-pub use kernel::Kernel;
+use kernel::Kernel;
 use screen::{Footprint, Scratch, Screen};
 use surfaces::{Outside, Surfaces};
 
@@ -247,12 +247,17 @@ impl Canvas {
     }
 
     fn heap_bytes(&self) -> usize {
-        self.buffer.heap_bytes() + self.drawn.capacity() * 4 + self.stack.capacity() * 8
+        self.buffer.heap_bytes()
+            + self.drawn.capacity() * 4
+            + self.stack.capacity() * 8
+            + self.order.capacity() * 16
     }
 }
 
 /// Canvases of clients that are gone, lent to new ones: a stateless
-/// request would otherwise allocate, and fault in, a whole buffer.
+/// request would otherwise allocate, and fault in, a whole buffer. A std
+/// mutex: it is held for a push or a pop, on a blocking thread, never
+/// across an await.
 #[derive(Default)]
 struct CanvasPool(Mutex<Vec<Canvas>>);
 
