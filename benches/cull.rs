@@ -1,5 +1,6 @@
 //! Cull time per frame of each method on the same walkthrough frames, with
-//! each method's client cache carried from frame to frame as a session's is.
+//! each method's client cache carried from frame to frame as a session's is
+//! (over unrelated views, a fresh cache each frame, as a stateless request's).
 //! Compare each method's time with `frustum`'s in the same run:
 //! `cargo bench --bench cull`.
 
@@ -50,13 +51,19 @@ fn bench_frames(
     for spec in specs {
         let spec: MethodSpec = spec.parse().unwrap();
         let (method, cache) = methods.prepare_client(&spec).unwrap();
-        // The job carries the cache and buffers from frame to frame.
+        // The job carries the cache and buffers from frame to frame; over
+        // unrelated views each frame is a stateless request's, with a
+        // fresh cache (as `pvsd eval` does).
+        let stateless = !params.kind.follows_on();
         let mut job = Some(CullJob::new(views[0], cache));
         let mut frame = 0;
         group.bench_function(spec.to_string(), |b| {
             b.iter(|| {
                 let mut next = job.take().expect("the job is back after each frame");
                 next.view = views[frame % views.len()];
+                if stateless {
+                    next.cache = method.new_cache(&spec.options).unwrap();
+                }
                 let culled = methods.cull_blocking(&method, next).unwrap();
                 frame += 1;
                 job = Some(culled.job);
