@@ -10,7 +10,7 @@
 //! affine in `(x, y)`: the side of a plane through the eye (an occluder's
 //! edge seen from the eye) and the inverse depth `1/z` of a plane.
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 
 use super::buffer::{CellRect, DepthBuffer};
 use crate::cull::View;
@@ -171,7 +171,7 @@ impl Screen {
     /// Whether it was drawn (not off the view, edge-on, or hidden already).
     pub fn draw(
         &self,
-        corners: &[DVec3],
+        corners: &[Vec3],
         plane: &Plane,
         thickness: f64,
         buffer: &mut DepthBuffer,
@@ -332,7 +332,7 @@ impl Screen {
     /// `corners` moved to view space and clipped to beyond the near plane,
     /// into `out` (fewer than three corners: nothing left). Corners that
     /// round together are merged.
-    fn clip_near(&self, corners: &[DVec3], out: &mut Vec<DVec3>) {
+    fn clip_near(&self, corners: &[Vec3], out: &mut Vec<DVec3>) {
         let near = self.near * (1.0 + NEAR_SLACK) + self.slack;
         out.clear();
         let push = |p: DVec3, out: &mut Vec<DVec3>| {
@@ -344,9 +344,9 @@ impl Screen {
             }
         };
         let n = corners.len();
-        let mut a = self.view_of(corners[n - 1]);
+        let mut a = self.view_of(corners[n - 1].as_dvec3());
         for &c in corners {
-            let b = self.view_of(c);
+            let b = self.view_of(c.as_dvec3());
             let (ina, inb) = (a.z >= near, b.z >= near);
             if ina != inb {
                 let t = (near - a.z) / (b.z - a.z);

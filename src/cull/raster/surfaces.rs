@@ -45,7 +45,9 @@ const CLUSTER: usize = 32;
 /// The surfaces of every static object of a scene.
 #[derive(Clone, Debug, Default)]
 pub struct Surfaces {
-    corners: Vec<DVec3>,
+    /// Every polygon's corners, in `f32`: they are the scene's own vertex
+    /// positions, exactly (a polygon whose corner is not is left out).
+    corners: Vec<Vec3>,
     surfaces: Vec<Surface>,
     clusters: Vec<Cluster>,
     /// Per object id, its clusters (none for movable objects: they are
@@ -58,7 +60,7 @@ pub struct Surfaces {
 /// How far a polygon's triangles may lie from its plane, in `f32` ulps of
 /// its largest coordinate: the merge keeps corners within
 /// [`PLANARITY_ULPS`] of it; twice that covers the plane's own rounding.
-pub fn thickness(corners: &[DVec3]) -> f64 {
+fn thickness(corners: &[DVec3]) -> f64 {
     let size = corners
         .iter()
         .map(|v| v.abs().max_element())
@@ -167,6 +169,11 @@ impl Surfaces {
                 let mut polygons: Vec<_> = object_polygons(scene, o)
                     .into_iter()
                     .filter_map(|p| {
+                        // Merged corners are triangle corners; kept in f32
+                        // only if that is exact (drawing less is safe).
+                        if p.vertices.iter().any(|v| v.as_vec3().as_dvec3() != *v) {
+                            return None;
+                        }
                         let plane = p.plane()?;
                         let (centre, radius) = sphere(&p.vertices);
                         Some((p.vertices, plane, centre, radius))
@@ -198,7 +205,7 @@ impl Surfaces {
                         centre: *centre,
                         radius: *radius,
                     });
-                    out.corners.extend_from_slice(corners);
+                    out.corners.extend(corners.iter().map(|c| c.as_vec3()));
                     bounds.merge(&Aabb::enclosing(centre - *radius, centre + *radius));
                     largest = largest.max(*radius);
                 }
@@ -230,7 +237,7 @@ impl Surfaces {
     }
 
     /// The corners of `s`.
-    pub fn corners(&self, s: &Surface) -> &[DVec3] {
+    pub fn corners(&self, s: &Surface) -> &[Vec3] {
         &self.corners[s.corners.start as usize..s.corners.end as usize]
     }
 
