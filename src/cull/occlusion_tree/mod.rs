@@ -68,6 +68,8 @@ pub struct OcclusionTreeCulling {
 pub struct OcclusionTreeState {
     variant: Variant,
     selection: Selection,
+    /// Rebuilt each frame in the same buffers.
+    tree: OcclusionTree,
 }
 
 /// The variants, in `variant=` spelling; the first is the default.
@@ -94,7 +96,11 @@ impl CullMethod for OcclusionTreeCulling {
         };
         let selection = Selection::new(SelectionOptions::read(&r)?);
         r.finish()?;
-        Ok(OcclusionTreeState { variant, selection })
+        Ok(OcclusionTreeState {
+            variant,
+            selection,
+            tree: OcclusionTree::default(),
+        })
     }
 
     fn is_conservative(&self, _: &Self::State) -> bool {
@@ -132,12 +138,14 @@ impl CullMethod for OcclusionTreeCulling {
             eps,
         );
         let variant = state.variant;
-        let occlusion = OcclusionTree::build(
+        let occlusion = &mut state.tree;
+        occlusion.rebuild(
             eye,
             polygons.iter().map(|(_, p)| p),
             variant != Variant::Fse,
             eps,
         );
+        let occlusion = &*occlusion;
         let mut test = |_: Target, b: &Aabb| match variant {
             Variant::Fse => occlusion.box_visibility_exact(b),
             Variant::Fme => occlusion.region_visibility(b, LeafTest::Exact),
@@ -149,6 +157,6 @@ impl CullMethod for OcclusionTreeCulling {
     }
 
     fn state_bytes(&self, state: &Self::State) -> usize {
-        std::mem::size_of::<Self::State>() + state.selection.heap_bytes()
+        std::mem::size_of::<Self::State>() + state.selection.heap_bytes() + state.tree.heap_bytes()
     }
 }

@@ -9,6 +9,8 @@
 //! classification against a plane errs towards "both sides" within `eps`,
 //! and "both sides" explores both subtrees, which can only find more visible.
 
+use std::cell::{Cell, RefCell};
+
 use glam::DVec3;
 
 use crate::cull::occlusion::Visibility;
@@ -58,23 +60,25 @@ pub enum LeafTest {
     Conservative,
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug)]
 enum Node {
     Inner { plane: Plane, front: u32, back: u32 },
     Out,
     In { fragment: u32 },
 }
 
-/// A fragment linked from in-leaves: its polygon, its plane facing the eye.
+/// A fragment linked from in-leaves: its corners (a range of
+/// `OcclusionTree::fragment_corners`) and its plane facing the eye.
 #[derive(Clone, Debug)]
 struct Fragment {
-    polygon: ConvexPolygon,
+    corners: (u32, u32),
     plane: Plane,
-    /// Separating axes of conv(eye, fragment) with its extent on each
-    /// (computed at the first in-leaf test that needs them): first its faces
-    /// (base, then one side per edge), then the box axes and the edge ×
-    /// box-axis crosses, from index `.1` on.
-    axes: std::cell::OnceCell<(Vec<Projection>, usize)>,
+    /// Where its separating axes lie in `OcclusionTree::axes`, once the
+    /// first in-leaf test that needs them computed them: `(start, exact
+    /// from, end)`. First the faces of conv(eye, fragment) (base, then one
+    /// side per edge), then, from `exact from`, the box axes and the edge ×
+    /// box-axis crosses.
+    axes: Cell<Option<(u32, u32, u32)>>,
 }
 
 /// An axis (unit) and the interval a convex solid covers along it.
@@ -85,63 +89,78 @@ struct Projection {
     hi: f64,
 }
 
-impl Fragment {
-    fn new(polygon: ConvexPolygon, plane: Plane) -> Fragment {
-        Fragment {
-            polygon,
-            plane,
-            axes: std::cell::OnceCell::new(),
-        }
-    }
-
-    /// The separating axes and where the exact-only ones start.
-    fn axes(&self, eye: DVec3) -> &(Vec<Projection>, usize) {
-        self.axes.get_or_init(|| self.compute_axes(eye))
-    }
-
-    fn compute_axes(&self, eye: DVec3) -> (Vec<Projection>, usize) {
-        let (polygon, plane) = (&self.polygon, &self.plane);
-        let v = &polygon.vertices;
-        let n = v.len();
-        let project = |axis: DVec3| {
-            let axis = axis.try_normalize()?;
-            let e = axis.dot(eye);
-            let (lo, hi) = v.iter().fold((e, e), |(l, h), p| {
-                let d = axis.dot(*p);
-                (l.min(d), h.max(d))
-            });
-            Some(Projection { axis, lo, hi })
-        };
-        let mut axes: Vec<Projection> = std::iter::once(plane.normal)
+/// Appends the separating axes of conv(eye, polygon `v` with `plane`) to
+/// `axes`; returns where the exact-only ones start.
+fn push_axes(v: &[DVec3], plane: &Plane, eye: DVec3, axes: &mut Vec<Projection>) -> usize {
+    let n = v.len();
+    let project = |axis: DVec3| {
+        let axis = axis.try_normalize()?;
+        let e = axis.dot(eye);
+        let (lo, hi) = v.iter().fold((e, e), |(l, h), p| {
+            let d = axis.dot(*p);
+            (l.min(d), h.max(d))
+        });
+        Some(Projection { axis, lo, hi })
+    };
+    axes.extend(
+        std::iter::once(plane.normal)
             .chain((0..n).map(|i| (v[i] - eye).cross(v[(i + 1) % n] - eye)))
-            .filter_map(project)
-            .collect();
-        let exact_from = axes.len();
-        let box_axes = [DVec3::X, DVec3::Y, DVec3::Z];
-        axes.extend(box_axes.iter().filter_map(|&a| project(a)));
-        let edges = (0..n).flat_map(|i| [v[(i + 1) % n] - v[i], v[i] - eye]);
-        axes.extend(
-            edges
-                .flat_map(|e| box_axes.map(|a| e.cross(a)))
-                .filter_map(project),
-        );
-        (axes, exact_from)
-    }
+            .filter_map(project),
+    );
+    let exact_from = axes.len();
+    let box_axes = [DVec3::X, DVec3::Y, DVec3::Z];
+    axes.extend(box_axes.iter().filter_map(|&a| project(a)));
+    let edges = (0..n).flat_map(|i| [v[(i + 1) % n] - v[i], v[i] - eye]);
+    axes.extend(
+        edges
+            .flat_map(|e| box_axes.map(|a| e.cross(a)))
+            .filter_map(project),
+    );
+    exact_from
 }
 
-/// A polygon whose edges may be flagged as lying in a plane already in the
-/// tree (MOBSP). `flags[i]` belongs to the edge from vertex `i` to `i + 1`.
-#[derive(Clone, Debug)]
-struct Flagged {
-    vertices: Vec<DVec3>,
-    flags: Vec<bool>,
+/// A corner of a piece being filtered down the tree, with the flag of the
+/// edge that starts at it: set when that edge lies in a plane already in
+/// the tree (MOBSP), so it adds no shadow plane.
+#[derive(Clone, Copy, Debug)]
+struct Corner {
+    at: DVec3,
+    flag: bool,
+}
+
+/// A piece of the occluder being inserted, waiting at `node`; its corners
+/// are `Scratch::corners[start..end]`.
+#[derive(Clone, Copy, Debug)]
+struct Piece {
+    node: u32,
+    start: u32,
+    end: u32,
+}
+
+/// Buffers an insertion works in, kept between insertions and frames so
+/// that building a tree allocates only while it grows past its largest yet.
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    /// Corners of the pieces of the occluder being inserted (pieces only
+    /// ever append; the whole is dropped when the occluder is in).
+    corners: Vec<Corner>,
+    pieces: Vec<Piece>,
+    /// Signed distances of a piece's corners from the plane splitting it.
+    distances: Vec<f64>,
+    planes: Vec<Plane>,
 }
 
 /// An occlusion tree for one eye.
-#[derive(Clone, Debug)]
+///
+/// A tree kept from frame to frame ([`OcclusionTree::rebuild`]) reuses its
+/// buffers: after the first frames, building it allocates nothing.
+#[derive(Clone, Debug, Default)]
 pub struct OcclusionTree {
     nodes: Vec<Node>,
     fragments: Vec<Fragment>,
+    fragment_corners: Vec<DVec3>,
+    axes: RefCell<Vec<Projection>>,
+    scratch: Scratch,
     eye: DVec3,
     eps: f64,
     modified: bool,
@@ -157,17 +176,30 @@ impl OcclusionTree {
         modified: bool,
         eps: f64,
     ) -> Self {
-        let mut t = OcclusionTree {
-            nodes: vec![Node::Out],
-            fragments: Vec::new(),
-            eye,
-            eps,
-            modified,
-        };
-        for o in occluders {
-            t.insert(o);
-        }
+        let mut t = OcclusionTree::default();
+        t.rebuild(eye, occluders, modified, eps);
         t
+    }
+
+    /// [`OcclusionTree::build`] in place, reusing this tree's buffers.
+    pub fn rebuild<'a>(
+        &mut self,
+        eye: DVec3,
+        occluders: impl IntoIterator<Item = &'a ConvexPolygon>,
+        modified: bool,
+        eps: f64,
+    ) {
+        self.nodes.clear();
+        self.nodes.push(Node::Out);
+        self.fragments.clear();
+        self.fragment_corners.clear();
+        self.axes.get_mut().clear();
+        (self.eye, self.eps, self.modified) = (eye, eps, modified);
+        let mut scratch = std::mem::take(&mut self.scratch);
+        for o in occluders {
+            self.insert(o, &mut scratch);
+        }
+        self.scratch = scratch;
     }
 
     /// How many nodes (shadow planes and leaves).
@@ -175,7 +207,21 @@ impl OcclusionTree {
         self.nodes.len()
     }
 
-    fn insert(&mut self, occluder: &ConvexPolygon) {
+    /// Bytes its buffers hold on the heap.
+    pub fn heap_bytes(&self) -> usize {
+        use std::mem::size_of;
+        let s = &self.scratch;
+        self.nodes.capacity() * size_of::<Node>()
+            + self.fragments.capacity() * size_of::<Fragment>()
+            + self.fragment_corners.capacity() * size_of::<DVec3>()
+            + self.axes.borrow().capacity() * size_of::<Projection>()
+            + s.corners.capacity() * size_of::<Corner>()
+            + s.pieces.capacity() * size_of::<Piece>()
+            + s.distances.capacity() * size_of::<f64>()
+            + s.planes.capacity() * size_of::<Plane>()
+    }
+
+    fn insert(&mut self, occluder: &ConvexPolygon, scratch: &mut Scratch) {
         let Some(plane) = occluder.plane() else {
             return;
         };
@@ -187,94 +233,86 @@ impl OcclusionTree {
         // A fragment with a degenerate shadow plane (the eye in line with an
         // edge) is refused where it would grow the tree (`grow`), so the
         // volume is never larger than the fragment's shadow.
-        let mut stack = vec![(
-            0u32,
-            Flagged {
-                flags: vec![false; occluder.vertices.len()],
-                vertices: occluder.vertices.clone(),
-            },
-        )];
-        while let Some((n, poly)) = stack.pop() {
-            match self.nodes[n as usize].clone() {
+        scratch.corners.clear();
+        scratch
+            .corners
+            .extend(occluder.vertices.iter().map(|&at| Corner { at, flag: false }));
+        scratch.pieces.clear();
+        scratch.pieces.push(Piece {
+            node: 0,
+            start: 0,
+            end: scratch.corners.len() as u32,
+        });
+        while let Some(piece) = scratch.pieces.pop() {
+            match self.nodes[piece.node as usize] {
                 Node::In { .. } => {}
-                Node::Out => self.grow(n, poly, plane),
+                Node::Out => self.grow(piece, plane, scratch),
                 Node::Inner {
                     plane: split,
                     front,
                     back,
-                } => {
-                    let (f, b) = split_flagged(&poly, &split, self.eps);
-                    if let Some(f) = f {
-                        stack.push((front, f));
-                    }
-                    if let Some(b) = b {
-                        stack.push((back, b));
-                    }
-                }
+                } => split_piece(piece, &split, [front, back], self.eps, scratch),
             }
         }
     }
 
-    /// The shadow planes of a polygon's edges, each with the polygon behind
-    /// it; `None` if one degenerates (the eye in line with an edge).
-    fn shadow_planes(&self, v: &[DVec3], plane: &Plane) -> Option<Vec<Plane>> {
+    /// Replaces the out-leaf a piece reached by the piece's occlusion volume.
+    fn grow(&mut self, piece: Piece, plane: Plane, scratch: &mut Scratch) {
+        let corners = &scratch.corners[piece.start as usize..piece.end as usize];
+        let first = self.fragment_corners.len();
+        self.fragment_corners.extend(corners.iter().map(|c| c.at));
+        let v = &self.fragment_corners[first..];
+        // Leaving the leaf lit is always safe.
+        if too_small_to_trust(v, self.eps) {
+            self.fragment_corners.truncate(first);
+            return;
+        }
+        // The shadow plane of each edge, with the piece behind it; a
+        // degenerate one (the eye in line with an edge) refuses the piece.
         let inside = v.iter().copied().sum::<DVec3>() / v.len() as f64;
-        (0..v.len())
-            .map(|i| {
-                let (a, b) = (v[i], v[(i + 1) % v.len()]);
-                // (a − eye) × (b − a): no cancellation when a and b are close.
-                let n = (a - self.eye).cross(b - a);
-                let p = Plane::from_point_normal(self.eye, n)?;
+        scratch.planes.clear();
+        for (i, c) in corners.iter().enumerate() {
+            let (a, b) = (v[i], v[(i + 1) % v.len()]);
+            // (a − eye) × (b − a): no cancellation when a and b are close.
+            let Some(p) = Plane::from_point_normal(self.eye, (a - self.eye).cross(b - a)) else {
+                self.fragment_corners.truncate(first);
+                return;
+            };
+            if !(self.modified && c.flag) {
                 let p = if p.signed_distance(inside) > 0.0 {
                     p.flipped()
                 } else {
                     p
                 };
-                // The eye must see the polygon's face, not an edge of it.
-                (plane.signed_distance(self.eye) > 0.0).then_some(p)
-            })
-            .collect()
-    }
-
-    /// Replaces out-leaf `n` by the occlusion volume of `poly`.
-    fn grow(&mut self, n: u32, poly: Flagged, plane: Plane) {
-        // Leaving the leaf lit is always safe.
-        if too_small_to_trust(&poly.vertices, self.eps) {
-            return;
+                scratch.planes.push(p);
+            }
         }
-        let Some(planes) = self.shadow_planes(&poly.vertices, &plane) else {
-            return;
-        };
         let fragment = self.fragments.len() as u32;
-        self.fragments.push(Fragment::new(
-            ConvexPolygon::new(poly.vertices.clone()),
+        self.fragments.push(Fragment {
+            corners: (first as u32, self.fragment_corners.len() as u32),
             plane,
-        ));
-        let planes: Vec<Plane> = planes
-            .into_iter()
-            .zip(&poly.flags)
-            .filter(|&(_, flagged)| !(self.modified && *flagged))
-            .map(|(p, _)| p)
-            .collect();
+            axes: Cell::new(None),
+        });
         // A chain: each plane's front is lit, its back leads to the next plane,
         // the last back is the shadow.
-        let mut at = n;
-        for (i, p) in planes.iter().enumerate() {
+        let mut at = piece.node;
+        let count = scratch.planes.len();
+        for (i, &p) in scratch.planes.iter().enumerate() {
             let out = self.push(Node::Out);
-            let back = if i + 1 == planes.len() {
+            let back = if i + 1 == count {
                 self.push(Node::In { fragment })
             } else {
                 self.push(Node::Out)
             };
             self.nodes[at as usize] = Node::Inner {
-                plane: *p,
+                plane: p,
                 front: out,
                 back,
             };
             at = back;
         }
-        if planes.is_empty() {
-            self.nodes[n as usize] = Node::In { fragment };
+        if count == 0 {
+            self.nodes[piece.node as usize] = Node::In { fragment };
         }
     }
 
@@ -341,15 +379,25 @@ impl OcclusionTree {
         let c = (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5;
         // Half-extents in f64: an f32 difference of far-apart bounds rounds.
         let r = (b.max.as_dvec3() - b.min.as_dvec3()) * 0.5;
-        let (all, exact_from) = f.axes(self.eye);
-        let axes = match leaf_test {
-            LeafTest::Conservative => &all[..*exact_from],
-            LeafTest::Exact => &all[..],
+        let (start, exact_from, end) = f.axes.get().unwrap_or_else(|| {
+            let mut axes = self.axes.borrow_mut();
+            let start = axes.len();
+            let v = &self.fragment_corners[f.corners.0 as usize..f.corners.1 as usize];
+            let exact_from = push_axes(v, &f.plane, self.eye, &mut axes);
+            let range = (start as u32, exact_from as u32, axes.len() as u32);
+            f.axes.set(Some(range));
+            range
+        });
+        let end = match leaf_test {
+            LeafTest::Conservative => exact_from,
+            LeafTest::Exact => end,
         };
-        axes.iter().any(|p| {
-            let (bc, br) = (p.axis.dot(c), p.axis.abs().dot(r));
-            bc + br < p.lo - self.eps || bc - br > p.hi + self.eps
-        })
+        self.axes.borrow()[start as usize..end as usize]
+            .iter()
+            .any(|p| {
+                let (bc, br) = (p.axis.dot(c), p.axis.abs().dot(r));
+                bc + br < p.lo - self.eps || bc - br > p.hi + self.eps
+            })
     }
 
     /// Exact visibility of a box with respect to the occluders (§5.1–5.2):
@@ -459,81 +507,106 @@ impl OcclusionTree {
     }
 }
 
-/// Splits a flagged polygon by a shadow plane. An edge on the plane (on or
-/// outside the part's side, see [`on_or_outside`]) is flagged in that part.
-fn split_flagged(p: &Flagged, plane: &Plane, eps: f64) -> (Option<Flagged>, Option<Flagged>) {
-    let d: Vec<f64> = p
-        .vertices
-        .iter()
-        .map(|&v| plane.signed_distance(v))
-        .collect();
+/// Sends a piece on to the children `[front, back]` of a shadow plane,
+/// split where it crosses. An edge on the plane (on or outside the part's
+/// side, see [`on_or_outside`]) is flagged in that part.
+fn split_piece(piece: Piece, plane: &Plane, children: [u32; 2], eps: f64, s: &mut Scratch) {
+    let (start, end) = (piece.start as usize, piece.end as usize);
+    s.distances.clear();
+    s.distances.extend(
+        s.corners[start..end]
+            .iter()
+            .map(|c| plane.signed_distance(c.at)),
+    );
+    let d = &s.distances;
     if d.iter().all(|x| x.abs() <= eps) {
         // In the plane (edge-on from the eye): it casts no shadow.
-        return (None, None);
+        return;
     }
-    if d.iter().all(|&x| x >= -eps) {
-        return (Some(flag_on_plane(p, &d, 1.0, eps)), None);
+    for (side, sign) in [(0, 1.0), (1, -1.0)] {
+        if d.iter().all(|&x| x * sign >= -eps) {
+            // Wholly on this side: flagged in place, sent on whole.
+            let n = d.len();
+            for i in 0..n {
+                if on_or_outside(d[i], sign, eps) && on_or_outside(d[(i + 1) % n], sign, eps) {
+                    s.corners[start + i].flag = true;
+                }
+            }
+            s.pieces.push(Piece {
+                node: children[side],
+                ..piece
+            });
+            return;
+        }
     }
-    if d.iter().all(|&x| x <= eps) {
-        return (None, Some(flag_on_plane(p, &d, -1.0, eps)));
+    for (side, sign) in [(0, 1.0), (1, -1.0)] {
+        if let Some(part) = clip_side(start, end, plane, sign, eps, s) {
+            s.pieces.push(Piece {
+                node: children[side],
+                ..part
+            });
+        }
     }
-    (
-        clip_side(p, plane, &d, 1.0, eps),
-        clip_side(p, plane, &d, -1.0, eps),
-    )
 }
 
-/// The part of `p` on side `sign` of the plane whose vertex distances are `d`.
-/// An output vertex's edge keeps the original edge's flag while it runs
-/// along that edge, and is flagged where it runs along the plane.
-fn clip_side(p: &Flagged, plane: &Plane, d: &[f64], sign: f64, eps: f64) -> Option<Flagged> {
-    let n = p.vertices.len();
-    let mut out = Flagged {
-        vertices: Vec::with_capacity(n + 1),
-        flags: Vec::with_capacity(n + 1),
-    };
+/// Appends the part of the piece `corners[start..end]` on side `sign` of
+/// the plane (whose distances are in `s.distances`) to `s.corners`. An
+/// output corner's edge keeps the original edge's flag while it runs along
+/// that edge, and is flagged where it runs along the plane.
+fn clip_side(
+    start: usize,
+    end: usize,
+    plane: &Plane,
+    sign: f64,
+    eps: f64,
+    s: &mut Scratch,
+) -> Option<Piece> {
+    let n = end - start;
+    let first = s.corners.len();
     for i in 0..n {
         let j = (i + 1) % n;
-        let (a, b) = (p.vertices[i], p.vertices[j]);
-        let (da, db) = (d[i] * sign, d[j] * sign);
+        let (a, b) = (s.corners[start + i], s.corners[start + j]);
+        let (di, dj) = (s.distances[i], s.distances[j]);
+        let (da, db) = (di * sign, dj * sign);
         let leaving = da > eps && db < -eps;
         let entering = da < -eps && db > eps;
         if da >= -eps {
             let along_edge = db >= -eps || leaving;
-            out.vertices.push(a);
-            out.flags.push(along_edge && p.flags[i]);
+            s.corners.push(Corner {
+                at: a.at,
+                flag: along_edge && a.flag,
+            });
         }
         if leaving || entering {
-            out.vertices.push(a + (b - a) * (d[i] / (d[i] - d[j])));
-            out.flags.push(entering && p.flags[i]);
+            s.corners.push(Corner {
+                at: a.at + (b.at - a.at) * (di / (di - dj)),
+                flag: entering && a.flag,
+            });
         }
     }
-    if out.vertices.len() < 3 {
+    let m = s.corners.len() - first;
+    if m < 3 {
+        s.corners.truncate(first);
         return None;
     }
-    let m = out.vertices.len();
-    for i in 0..m {
-        let (a, b) = (out.vertices[i], out.vertices[(i + 1) % m]);
-        if on_or_outside(plane.signed_distance(a), sign, eps)
-            && on_or_outside(plane.signed_distance(b), sign, eps)
-        {
-            out.flags[i] = true;
+    // An edge whose both ends lie on the plane (or outside this side) runs
+    // along it: flagged.
+    let part = &mut s.corners[first..];
+    let on_first = on_or_outside(plane.signed_distance(part[0].at), sign, eps);
+    let mut on_next = on_first;
+    for i in (0..m).rev() {
+        // Walking backwards, `on_next` is corner i + 1's (corner 0's for the last).
+        let on_here = on_or_outside(plane.signed_distance(part[i].at), sign, eps);
+        if on_here && on_next {
+            part[i].flag = true;
         }
+        on_next = on_here;
     }
-    Some(out)
-}
-
-/// The polygon with every edge that lies on `plane` (distances `d`), on or
-/// outside side `sign`, flagged.
-fn flag_on_plane(p: &Flagged, d: &[f64], sign: f64, eps: f64) -> Flagged {
-    let n = p.vertices.len();
-    let mut out = p.clone();
-    for i in 0..n {
-        if on_or_outside(d[i], sign, eps) && on_or_outside(d[(i + 1) % n], sign, eps) {
-            out.flags[i] = true;
-        }
-    }
-    out
+    Some(Piece {
+        node: 0,
+        start: first as u32,
+        end: (first + m) as u32,
+    })
 }
 
 /// Whether a point at distance `d` lies on the plane or outside the cell on
