@@ -107,6 +107,21 @@ impl Plane {
         )
     }
 
+    /// The smallest signed distance of the box's corners: the first half of
+    /// [`Plane::box_range`] at half its cost, for tests that ask only
+    /// whether a box lies wholly in front.
+    pub fn box_min(&self, b: &Aabb) -> f64 {
+        if b.is_empty() {
+            return f64::INFINITY;
+        }
+        let pick = |n: f64, lo: f32, hi: f32| if n >= 0.0 { lo } else { hi };
+        self.signed_distance(DVec3::new(
+            pick(self.normal.x, b.min.x, b.max.x) as f64,
+            pick(self.normal.y, b.min.y, b.max.y) as f64,
+            pick(self.normal.z, b.min.z, b.max.z) as f64,
+        ))
+    }
+
     /// `(p-vertex, n-vertex)` of the box for this normal.
     fn extreme_corners(&self, b: &Aabb) -> (Vec3, Vec3) {
         let pick = |n: f64, lo: f32, hi: f32| if n >= 0.0 { (hi, lo) } else { (lo, hi) };
