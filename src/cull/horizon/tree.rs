@@ -1,12 +1,23 @@
-//! The occlusion horizon as a balanced binary tree over screen x (Downs et
-//! al. §3.4, Fig. 3): a piecewise-constant height per column, with the
-//! minimum and maximum height of every subtree.
+//! The occlusion horizon (Downs et al. §3.4, Fig. 3): a piecewise-constant
+//! height per screen column, with the lowest height of every block of
+//! columns.
 //!
-//! The paper splits its tree at the masks' own x values; here the window of
-//! the horizontal view is cut into a fixed number of columns, which keeps the
-//! tree balanced without rotations. Rounding to columns is conservative in
-//! both directions: a mask raises only the columns it covers *wholly*, and a
-//! test looks at every column its frame *touches*.
+//! The paper keeps a balanced binary tree split at the masks' own x values;
+//! here the window of the horizontal view is cut into a fixed number of
+//! columns, grouped in blocks of [`BLOCK`]. A test of a frame reads the
+//! lowest height of each block it covers wholly and the columns of the (at
+//! most two) blocks it covers in part; a mask raises a wholly covered block
+//! by a floor kept for the block, and the columns of a partly covered one.
+//! That is the tree's answer with its logarithmic walk replaced by a few
+//! straight loops over contiguous memory (the horizon of a street view
+//! takes hundreds of masks and thousands of tests a frame).
+//!
+//! Rounding to columns is conservative in both directions: a mask raises
+//! only the columns it covers *wholly*, and a test looks at every column
+//! its frame *touches*.
+
+/// Columns per block.
+const BLOCK: usize = 16;
 
 /// Heights over `[x0, x1)` of the horizontal view plane, in `columns` columns.
 #[derive(Clone, Debug)]
@@ -15,10 +26,13 @@ pub struct Horizon {
     /// Columns per unit of x.
     scale: f64,
     columns: usize,
-    min: Vec<f64>,
-    max: Vec<f64>,
-    /// A height assigned to a whole subtree and not yet pushed to its children.
-    pending: Vec<Option<f64>>,
+    /// Per column, the highest mask raised over it alone; a column's height
+    /// is the larger of this and its block's floor.
+    heights: Vec<f64>,
+    /// Per block, the highest mask raised over the whole block.
+    floors: Vec<f64>,
+    /// Per block, the lowest height of its columns.
+    lowest: Vec<f64>,
 }
 
 /// The part of a frame above the horizon: columns `first..=last` (in x,
@@ -47,33 +61,33 @@ fn shrink(v: f64) -> f64 {
 impl Horizon {
     /// Bytes its columns take on the heap.
     pub fn heap_bytes(&self) -> usize {
-        (self.min.capacity() + self.max.capacity()) * std::mem::size_of::<f64>()
-            + self.pending.capacity() * std::mem::size_of::<Option<f64>>()
+        (self.heights.capacity() + self.floors.capacity() + self.lowest.capacity())
+            * std::mem::size_of::<f64>()
     }
 
     /// An empty horizon (−∞ everywhere) over `[x0, x1)` in `columns` columns.
     pub fn new(columns: usize) -> Self {
-        let n = 2 * columns.next_power_of_two();
+        let blocks = columns.div_ceil(BLOCK);
         let mut h = Horizon {
             x0: 0.0,
             scale: 1.0,
             columns,
-            min: vec![f64::NEG_INFINITY; n],
-            max: vec![f64::NEG_INFINITY; n],
-            pending: vec![None; n],
+            heights: vec![f64::NEG_INFINITY; columns],
+            floors: vec![f64::NEG_INFINITY; blocks],
+            lowest: vec![f64::NEG_INFINITY; blocks],
         };
         h.reset(0.0, 1.0);
         h
     }
 
     /// Empties the horizon and sets its window to `[x0, x1)`, keeping the
-    /// allocation: one frame's work per call, not one per column.
+    /// allocation.
     pub fn reset(&mut self, x0: f64, x1: f64) {
         self.x0 = x0;
         self.scale = self.columns as f64 / (x1 - x0);
-        self.min[1] = f64::NEG_INFINITY;
-        self.max[1] = f64::NEG_INFINITY;
-        self.pending[1] = Some(f64::NEG_INFINITY);
+        self.heights.fill(f64::NEG_INFINITY);
+        self.floors.fill(f64::NEG_INFINITY);
+        self.lowest.fill(f64::NEG_INFINITY);
     }
 
     fn column_at(&self, x: f64) -> f64 {
@@ -92,8 +106,27 @@ impl Horizon {
             lo.max(0.0) as usize,
             hi.min(self.columns as f64 - 1.0) as usize,
         );
-        let size = self.min.len() / 2;
-        self.raise(1, 0, size - 1, lo, hi, shrink(height));
+        let height = shrink(height);
+        for b in lo / BLOCK..=hi / BLOCK {
+            if height <= self.lowest[b] {
+                continue; // every column of the block is already higher
+            }
+            let (first, last) = (b * BLOCK, ((b + 1) * BLOCK).min(self.columns) - 1);
+            if lo <= first && last <= hi {
+                self.floors[b] = height;
+                self.lowest[b] = height;
+                continue;
+            }
+            let floor = self.floors[b];
+            let mut lowest = f64::INFINITY;
+            for c in first..=last {
+                if (lo..=hi).contains(&c) {
+                    self.heights[c] = self.heights[c].max(height);
+                }
+                lowest = lowest.min(self.heights[c].max(floor));
+            }
+            self.lowest[b] = lowest;
+        }
     }
 
     /// The columns a frame `[x_lo, x_hi]` touches, clamped to the window.
@@ -109,107 +142,46 @@ impl Horizon {
         ))
     }
 
+    /// The height of column `c`.
+    fn height(&self, c: usize) -> f64 {
+        self.heights[c].max(self.floors[c / BLOCK])
+    }
+
     /// Whether a frame `[x_lo, x_hi]` whose top is `top` lies wholly below
     /// the horizon (§3.5): every column it touches is higher than its top.
     /// A frame outside the window is not hidden.
     pub fn hides(&self, x_lo: f64, x_hi: f64, top: f64) -> bool {
-        match self.touched(x_lo, x_hi) {
-            Some((lo, hi)) => {
-                let size = self.min.len() / 2;
-                self.above(1, 0, size - 1, lo, hi, grow(top))
+        let Some((lo, hi)) = self.touched(x_lo, x_hi) else {
+            return false;
+        };
+        let top = grow(top);
+        (lo / BLOCK..=hi / BLOCK).all(|b| {
+            if self.lowest[b] > top {
+                return true;
             }
-            None => false,
-        }
+            let (first, last) = (b * BLOCK, ((b + 1) * BLOCK).min(self.columns) - 1);
+            // The block's lowest column is not above the top: a block
+            // covered wholly is open; one covered in part, only if that
+            // column is among those covered.
+            !(lo <= first && last <= hi)
+                && (first.max(lo)..=last.min(hi)).all(|c| self.height(c) > top)
+        })
     }
 
     /// The part of a frame `[x_lo, x_hi]` (top `top`) above the horizon
     /// (§3.6), or `None` when it is hidden or outside the window.
     pub fn opening(&self, x_lo: f64, x_hi: f64, top: f64) -> Option<Opening> {
         let (lo, hi) = self.touched(x_lo, x_hi)?;
-        let size = self.min.len() / 2;
-        let mut span = (usize::MAX, 0usize, f64::INFINITY);
-        self.open_columns(1, 0, size - 1, lo, hi, grow(top), &mut span);
-        (span.0 != usize::MAX).then(|| Opening {
-            x_lo: self.x0 + span.0 as f64 / self.scale,
-            x_hi: self.x0 + (span.1 + 1) as f64 / self.scale,
-            floor: span.2,
+        let top = grow(top);
+        let open = |c: &usize| self.height(*c) <= top;
+        let first = (lo..=hi).find(open)?;
+        let last = (lo..=hi).rev().find(open)?;
+        let floor = (lo..=hi).map(|c| self.height(c)).fold(f64::INFINITY, f64::min);
+        Some(Opening {
+            x_lo: self.x0 + first as f64 / self.scale,
+            x_hi: self.x0 + (last + 1) as f64 / self.scale,
+            floor,
         })
-    }
-
-    fn assign(&mut self, node: usize, height: f64) {
-        self.min[node] = height;
-        self.max[node] = height;
-        self.pending[node] = Some(height);
-    }
-
-    fn push_down(&mut self, node: usize) {
-        if let Some(h) = self.pending[node].take() {
-            if 2 * node + 1 < self.min.len() {
-                self.assign(2 * node, h);
-                self.assign(2 * node + 1, h);
-            }
-        }
-    }
-
-    /// Raises columns `lo..=hi` of the subtree `node` (over `nl..=nr`) to
-    /// `height` (§3.5: a mask that hides a node replaces its subtree; one
-    /// hidden by the node stops there).
-    fn raise(&mut self, node: usize, nl: usize, nr: usize, lo: usize, hi: usize, height: f64) {
-        if hi < nl || nr < lo || height <= self.min[node] {
-            return;
-        }
-        if lo <= nl && nr <= hi && height >= self.max[node] {
-            self.assign(node, height);
-            return;
-        }
-        self.push_down(node);
-        let mid = (nl + nr) / 2;
-        self.raise(2 * node, nl, mid, lo, hi, height);
-        self.raise(2 * node + 1, mid + 1, nr, lo, hi, height);
-        self.min[node] = self.min[2 * node].min(self.min[2 * node + 1]);
-        self.max[node] = self.max[2 * node].max(self.max[2 * node + 1]);
-    }
-
-    /// Whether every column of `lo..=hi` in the subtree is higher than `top`.
-    fn above(&self, node: usize, nl: usize, nr: usize, lo: usize, hi: usize, top: f64) -> bool {
-        if hi < nl || nr < lo || self.min[node] > top {
-            return true;
-        }
-        if self.max[node] <= top || self.pending[node].is_some() {
-            // Some column of the overlap is at most `top` (a pending node is flat).
-            return false;
-        }
-        let mid = (nl + nr) / 2;
-        self.above(2 * node, nl, mid, lo, hi, top)
-            && self.above(2 * node + 1, mid + 1, nr, lo, hi, top)
-    }
-
-    /// Gathers the first and last column of `lo..=hi` at most `top`, and
-    /// their lowest height.
-    #[allow(clippy::too_many_arguments)]
-    fn open_columns(
-        &self,
-        node: usize,
-        nl: usize,
-        nr: usize,
-        lo: usize,
-        hi: usize,
-        top: f64,
-        span: &mut (usize, usize, f64),
-    ) {
-        if hi < nl || nr < lo || self.min[node] > top {
-            return;
-        }
-        if self.pending[node].is_some() || (lo <= nl && nr <= hi && self.max[node] <= top) {
-            // Flat, or wholly open: its overlap with lo..=hi is open.
-            span.0 = span.0.min(nl.max(lo));
-            span.1 = span.1.max(nr.min(hi));
-            span.2 = span.2.min(self.min[node]);
-            return;
-        }
-        let mid = (nl + nr) / 2;
-        self.open_columns(2 * node, nl, mid, lo, hi, top, span);
-        self.open_columns(2 * node + 1, mid + 1, nr, lo, hi, top, span);
     }
 }
 
