@@ -10,10 +10,11 @@ use anyhow::{Context, bail};
 use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
+use pvsd::cull::ranking::{FrameCost, Ranking};
 use pvsd::cull::{
     AUTO_CHOICE, MethodContext, MethodSpec, Registry, SceneMethods, View, VisibleSet,
 };
-use pvsd::eval::{EvalParams, WalkParams};
+use pvsd::eval::{EvalParams, RankParams, WalkParams, rank, rank_cached};
 use pvsd::geom::Camera;
 use pvsd::scene::generate::{
     CadOptions, CityOptions, CrowdOptions, OfficeOptions, cad, city, crowd, office,
@@ -347,6 +348,13 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         bake_dir = %context.bake_dir.as_deref().map_or("none".into(), |d| d.display().to_string()),
         "scenes prepared"
     );
+    if config.rank_methods.unwrap_or(true) {
+        // Not joined: the server serves while it measures.
+        let _ = state.rank_in_background(
+            RankParams::default(),
+            context.bake_dir.as_ref().map(BakeCache::new),
+        );
+    }
     let addr = args
         .addr
         .or(config.addr)
@@ -534,6 +542,18 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
         dir.display(),
         methods.names().join(", ")
     );
+    let started = std::time::Instant::now();
+    let ranking = rank_cached(
+        &methods,
+        &RankParams::default(),
+        Some(&BakeCache::new(&dir)),
+    );
+    println!(
+        "{}: methods ranked for auto in {} ms",
+        methods.scene().id,
+        started.elapsed().as_millis()
+    );
+    print_ranking(&ranking, methods.frame_cost());
     Ok(())
 }
 
@@ -554,10 +574,39 @@ fn methods(args: MethodsArgs) -> anyhow::Result<()> {
         }
     }
     println!(
-        "{:<18} answers with {AUTO_CHOICE} (auto does not measure scenes yet)",
+        "{:<18} the cheapest method measured on the scene's sample views (cull time + PVS triangles × cost_per_triangle_ns + bytes × cost_per_byte_ns); {AUTO_CHOICE} until measured",
         "auto"
     );
+    if let Some(m) = &prepared {
+        print_ranking(&rank(m, &RankParams::default()), m.frame_cost());
+    }
     Ok(())
+}
+
+/// A ranking as a table, cheapest first at `cost`.
+fn print_ranking(ranking: &Ranking, cost: FrameCost) {
+    println!(
+        "auto on {} sample views ({}), at {} ns a triangle and {} ns a byte:",
+        ranking.frames,
+        ranking.walks.join(", "),
+        cost.per_triangle_ns,
+        cost.per_byte_ns
+    );
+    println!(
+        "  {:<18} {:>12} {:>12} {:>10} {:>14} {:>14}",
+        "method", "mean cull µs", "median µs", "mean PVS", "PVS triangles", "frame cost µs"
+    );
+    for (m, frame_cost) in ranking.ranked(cost) {
+        println!(
+            "  {:<18} {:>12.1} {:>12.1} {:>10.1} {:>14.0} {:>14.1}",
+            m.method,
+            m.mean_cull_us,
+            m.median_cull_us,
+            m.mean_pvs,
+            m.mean_pvs_triangles,
+            frame_cost
+        );
+    }
 }
 
 fn eval(args: EvalArgs) -> anyhow::Result<()> {
@@ -571,10 +620,24 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         .collect::<anyhow::Result<Vec<MethodSpec>>>()?;
     let context = MethodContext {
         bake_dir: args.bake_dir.clone().or_else(BakeCache::default_dir),
+        frame_cost: FrameCost {
+            per_triangle_ns: args.cost_per_triangle_ns,
+            ..FrameCost::default()
+        },
         ..MethodContext::of_this_machine()
     };
     let methods =
         SceneMethods::prepare_with(load_scene(&args.scene)?, &Registry::standard(), &context);
+    if specs.iter().any(|s| s.name == "auto") {
+        // `auto` answers from the scene's ranking: measure it (or read it
+        // from the bake cache) as a server would.
+        let cache = context.bake_dir.as_ref().map(BakeCache::new);
+        methods.set_ranking(rank_cached(
+            &methods,
+            &RankParams::default(),
+            cache.as_ref(),
+        ));
+    }
     let params = EvalParams {
         walk: WalkParams {
             kind: args.walk,

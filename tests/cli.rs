@@ -300,13 +300,13 @@ fn bake_makes_the_bakes_and_reuses_them() {
     assert!(ok && out.contains("prepared in"), "{out}{err}");
     assert_eq!(
         err.matches("baked").count(),
-        2,
-        "occluders and prisms: {err}"
+        3,
+        "occluders, prisms and auto's ranking: {err}"
     );
-    assert_eq!(std::fs::read_dir(&bakes).unwrap().count(), 2);
+    assert_eq!(std::fs::read_dir(&bakes).unwrap().count(), 3);
     let (ok, _, err) = run(&args);
     assert!(ok);
-    assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
+    assert_eq!(err.matches("loaded a bake").count(), 3, "{err}");
 }
 
 /// Every file in the bake folder `dir` is a bake: no temporary file left.
@@ -343,7 +343,7 @@ fn two_bakers_at_once_leave_whole_bakes() {
     }
     let (ok, _, err) = run(&args);
     assert!(ok);
-    assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
+    assert_eq!(err.matches("loaded a bake").count(), 3, "{err}");
     assert_only_whole_bakes(&bakes);
 }
 
@@ -371,16 +371,16 @@ fn a_killed_bake_leaves_nothing_that_loads_wrong() {
         let baked = err.matches("none yet").count();
         assert_eq!(
             loaded + baked,
-            2,
+            3,
             "at {wait_ms} ms, every bake loads or is made: {err}"
         );
         assert!(
             !err.contains("checksum") && !err.contains("truncated"),
             "{err}"
         );
-        // And the run after loads both.
+        // And the run after loads all three.
         let (_, _, err) = run(&args);
-        assert_eq!(err.matches("loaded a bake").count(), 2, "{err}");
+        assert_eq!(err.matches("loaded a bake").count(), 3, "{err}");
     }
 }
 

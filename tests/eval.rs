@@ -333,7 +333,9 @@ fn eval_command_writes_json_and_svg() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(report["methods"].as_array().unwrap().len(), 2);
-    assert_eq!(report["methods"][1]["method"], "auto");
+    // `auto` says what it answered with.
+    let auto = report["methods"][1]["method"].as_str().unwrap();
+    assert!(auto.starts_with("auto→"), "{auto}");
     let svg = std::fs::read_to_string(&svg).unwrap();
     assert!(
         svg.starts_with("<svg") && svg.contains("frustum") && svg.contains("truth-visible"),

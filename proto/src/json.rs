@@ -183,6 +183,50 @@ pub struct SceneInfo {
     /// Methods it does not support, each with why (e.g. `horizon` on a
     /// scene that is no height field over a ground).
     pub unsupported: BTreeMap<String, String>,
+    /// What `auto` answers with here, and the measurements behind it.
+    pub auto: AutoInfo,
+}
+
+/// `auto` on one scene: its choice at the server's prices and the ranking
+/// it chose from.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct AutoInfo {
+    /// The method `auto` answers with at the server's prices.
+    pub choice: String,
+    /// `measured` once the scene's methods were measured; `unmeasured`
+    /// before (or with `rank_methods = false`): then `auto` is frustum.
+    pub status: String,
+    /// The server's price of drawing a triangle, ns (a request may name
+    /// its own: `auto` with `{"cost_per_triangle_ns": 10}`).
+    pub cost_per_triangle_ns: f64,
+    /// The server's price of sending a byte of geometry, ns.
+    pub cost_per_byte_ns: f64,
+    /// The walks the sample views came from.
+    pub walks: Vec<String>,
+    /// Sample views in all.
+    pub frames: usize,
+    /// Every conservative method measured, cheapest first at the server's prices.
+    pub ranking: Vec<RankedMethod>,
+}
+
+/// One method as `auto` measured it on a scene.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct RankedMethod {
+    /// The method (default options).
+    pub method: String,
+    /// Mean cull time, µs.
+    pub mean_cull_us: f64,
+    /// Median cull time, µs.
+    pub median_cull_us: f64,
+    /// Mean objects in the answer.
+    pub mean_pvs: f64,
+    /// Mean triangles in the answer.
+    pub mean_pvs_triangles: f64,
+    /// Mean bytes of the answer's geometry (36 a triangle).
+    pub mean_pvs_bytes: f64,
+    /// Modelled frame cost at the server's prices, µs: cull + triangles ×
+    /// cost_per_triangle_ns + bytes × cost_per_byte_ns.
+    pub frame_cost_us: f64,
 }
 
 /// One entry of `GET /scenes/{id}/objects`.

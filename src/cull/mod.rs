@@ -8,7 +8,8 @@
 //!   [`Culler`], what callers see), execution modes, stats and errors;
 //! - [`spec`]: naming a method and reading its options;
 //! - [`registry`]: the list of methods and a scene prepared with those it
-//!   supports ([`SceneMethods`]);
+//!   supports ([`SceneMethods`]); [`ranking`]: the measured ranking `auto`
+//!   answers from;
 //! - [`dispatch`]: running a cull where its method runs, with the frustum
 //!   fallback; [`device`]: the queue in front of a device's thread;
 //! - [`occlusion`]: the vocabulary the object-space occlusion methods share
@@ -26,6 +27,7 @@ pub mod dispatch;
 pub mod method;
 pub mod occluder;
 pub mod occlusion;
+pub mod ranking;
 pub mod registry;
 mod spec;
 mod subtree;

@@ -22,7 +22,8 @@ use super::frustum::FrustumCulling;
 use super::gpu::Gpu;
 use super::horizon::Prisms;
 use super::occluder::Occluders;
-use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodSpec};
+use super::ranking::{FrameCost, Ranking};
+use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodOptions, MethodSpec};
 use super::{CullError, CullJob, View, VisibleSet};
 use crate::scene::{BakeCache, Scene};
 use crate::spatial::{KdTree, KdTreeParams};
@@ -42,6 +43,8 @@ pub struct MethodContext {
     pub gpu: Result<Arc<Gpu>, String>,
     /// Methods the operator turned off; listed as unsupported with that reason.
     pub disabled: Vec<String>,
+    /// The prices `auto` ranks methods with when a request names none.
+    pub frame_cost: FrameCost,
 }
 
 impl Default for MethodContext {
@@ -53,6 +56,7 @@ impl Default for MethodContext {
             device: None,
             gpu: Err("no Vulkan device in this context".into()),
             disabled: Vec::new(),
+            frame_cost: FrameCost::default(),
         }
     }
 }
@@ -179,9 +183,9 @@ pub struct Registry {
     entries: Vec<MethodEntry>,
 }
 
-/// The method `auto` answers with, until `auto` measures each scene:
-/// frustum culling is, per frame, the cheapest conservative answer on every
-/// scene measured so far (README, "Methods").
+/// The method `auto` answers with until the scene's methods are ranked
+/// ([`SceneMethods::set_ranking`]): the exact in-frustum set, which never
+/// costs much.
 pub const AUTO_CHOICE: &str = "frustum";
 
 impl Registry {
@@ -241,6 +245,10 @@ pub struct SceneMethods {
     fallback: Arc<dyn Culler>,
     /// Every name a request may use here (the registry's and `auto`).
     known: Vec<&'static str>,
+    /// The measured ranking `auto` answers from, once there is one.
+    ranking: OnceLock<Ranking>,
+    /// The prices `auto` ranks with when a request names none.
+    frame_cost: FrameCost,
 }
 
 impl SceneMethods {
@@ -296,7 +304,52 @@ impl SceneMethods {
             unsupported,
             fallback,
             known,
+            ranking: OnceLock::new(),
+            frame_cost: context.frame_cost,
         }
+    }
+
+    /// Installs the measured ranking `auto` answers from (the first one
+    /// given; false when one was there already).
+    pub fn set_ranking(&self, ranking: Ranking) -> bool {
+        self.ranking.set(ranking).is_ok()
+    }
+
+    /// The measured ranking, once [`SceneMethods::set_ranking`] gave one.
+    pub fn ranking(&self) -> Option<&Ranking> {
+        self.ranking.get()
+    }
+
+    /// The prices `auto` ranks with when a request names none.
+    pub fn frame_cost(&self) -> FrameCost {
+        self.frame_cost
+    }
+
+    /// The method `auto` answers with at these prices: the ranking's
+    /// cheapest, or [`AUTO_CHOICE`] before there is a ranking.
+    pub fn auto_choice(&self, cost: FrameCost) -> &Arc<dyn Culler> {
+        let name = self
+            .ranking()
+            .and_then(|r| r.best(cost))
+            .unwrap_or(AUTO_CHOICE);
+        self.methods
+            .iter()
+            .find(|m| m.name() == name)
+            .unwrap_or(&self.fallback)
+    }
+
+    /// The method a spec names with the options it gets: `auto` reads its
+    /// prices (`cost_per_triangle_ns`, `cost_per_byte_ns`) and hands its
+    /// choice the choice's defaults.
+    pub fn resolve(
+        &self,
+        spec: &MethodSpec,
+    ) -> Result<(&Arc<dyn Culler>, MethodOptions), MethodError> {
+        if spec.name == "auto" {
+            let cost = FrameCost::read(&spec.options, self.frame_cost)?;
+            return Ok((self.auto_choice(cost), MethodOptions::default()));
+        }
+        Ok((self.get(&spec.name)?, spec.options.clone()))
     }
 
     /// Methods of the registry this scene does not support, with why.
@@ -324,15 +377,11 @@ impl SceneMethods {
         &self.fallback
     }
 
-    /// The method called `name`; `auto` is [`AUTO_CHOICE`] (or frustum
-    /// culling, when a registry leaves that out).
+    /// The method called `name`; `auto` is its choice at the configured
+    /// prices ([`SceneMethods::auto_choice`]).
     pub fn get(&self, name: &str) -> Result<&Arc<dyn Culler>, MethodError> {
         if name == "auto" {
-            return Ok(self
-                .methods
-                .iter()
-                .find(|m| m.name() == AUTO_CHOICE)
-                .unwrap_or(&self.fallback));
+            return Ok(self.auto_choice(self.frame_cost));
         }
         if let Some(m) = self.methods.iter().find(|m| m.name() == name) {
             return Ok(m);
@@ -358,8 +407,8 @@ impl SceneMethods {
         &self,
         spec: &MethodSpec,
     ) -> Result<(Arc<dyn Culler>, ClientCache), MethodError> {
-        let method = self.get(&spec.name)?;
-        let cache = method.new_cache(&spec.options)?;
+        let (method, options) = self.resolve(spec)?;
+        let cache = method.new_cache(&options)?;
         Ok((method.clone(), cache))
     }
 

@@ -11,12 +11,14 @@
 //! of Bittner et al.'s Table 2: cull time + PVS triangles × a cost per
 //! triangle, so the report shows when culling pays.
 
+mod rank;
 mod report;
 mod walk;
 
 use std::sync::Arc;
 use std::time::Instant;
 
+pub use rank::{RankParams, rank, rank_cached};
 pub use report::{EvalReport, MethodReport, write_svg};
 pub use walk::{WalkError, WalkKind, WalkParams, walk};
 
@@ -110,8 +112,14 @@ impl Contender {
 
     /// A contender for a method of `methods` named by `spec`.
     pub fn from_spec(methods: &SceneMethods, spec: &MethodSpec) -> Result<Self, MethodError> {
-        let method = methods.get(&spec.name)?.clone();
-        Contender::new(spec.to_string(), method, spec.options.clone())
+        let (method, options) = methods.resolve(spec)?;
+        let label = if spec.name == "auto" {
+            // Say what `auto` answered with: the table is about methods.
+            format!("{spec}→{}", method.name())
+        } else {
+            spec.to_string()
+        };
+        Contender::new(label, method.clone(), options)
     }
 }
 

@@ -11,6 +11,9 @@
 //! max_walkthroughs = 10000
 //! bake_dir = "bakes"             # baked data cached between runs
 //! disabled_methods = ["supporting_planes"]  # listed as unsupported
+//! rank_methods = true            # measure each scene's methods for `auto`
+//! cost_per_triangle_ns = 2.0     # the prices `auto` ranks with
+//! cost_per_byte_ns = 0.0
 //! ```
 //! Every key is optional; flags given on the command line win over the file.
 
@@ -21,6 +24,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::{Limits, SessionLimits};
+use crate::cull::ranking::{COST_PER_BYTE_NS, COST_PER_TRIANGLE_NS, FrameCost};
 use crate::cull::{MethodContext, Registry};
 use crate::scene::BakeCache;
 
@@ -53,6 +57,14 @@ pub struct ServeConfig {
     /// The bearer token of routes that change scenes (`PUT
     /// /scenes/{id}/objects/{oid}`); without one they answer 403.
     pub admin_token: Option<String>,
+    /// Whether each scene's methods are measured in the background after
+    /// it starts serving, for `auto` (default true; off, `auto` answers
+    /// with frustum culling).
+    pub rank_methods: Option<bool>,
+    /// Modelled cost of drawing a triangle, ns, for `auto` (default 2).
+    pub cost_per_triangle_ns: Option<f64>,
+    /// Modelled cost of sending a byte of geometry, ns, for `auto` (default 0).
+    pub cost_per_byte_ns: Option<f64>,
 }
 
 /// A config file that could not be used.
@@ -94,6 +106,18 @@ impl ServeConfig {
                     .into(),
             ));
         }
+        for (range, value) in [
+            (&COST_PER_TRIANGLE_NS, cfg.cost_per_triangle_ns),
+            (&COST_PER_BYTE_NS, cfg.cost_per_byte_ns),
+        ] {
+            if let Some(v) = value.filter(|v| !(range.min..=range.max).contains(v)) {
+                return Err(fail(format!(
+                    "{}: {v} is not {}",
+                    range.key,
+                    range.expected()
+                )));
+            }
+        }
         if cfg.body_limit_bytes == Some(0) {
             return Err(fail("body_limit_bytes must be > 0".into()));
         }
@@ -118,6 +142,12 @@ impl ServeConfig {
         MethodContext {
             bake_dir: self.bake_dir.clone().or_else(BakeCache::default_dir),
             disabled: self.disabled_methods.clone(),
+            frame_cost: FrameCost {
+                per_triangle_ns: self
+                    .cost_per_triangle_ns
+                    .unwrap_or(COST_PER_TRIANGLE_NS.default),
+                per_byte_ns: self.cost_per_byte_ns.unwrap_or(COST_PER_BYTE_NS.default),
+            },
             ..MethodContext::of_this_machine()
         }
     }

@@ -11,8 +11,9 @@ use axum::extract::{OriginalUri, Path, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use pvsd_proto::json::{
-    Bounds, FrameResponse, MoveRequest, ObjectInfo, SceneInfo, SessionCreated, SessionRequest,
-    UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo,
+    AutoInfo, Bounds, FrameResponse, MoveRequest, ObjectInfo, RankedMethod, SceneInfo,
+    SessionCreated, SessionRequest, UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated,
+    WalkthroughInfo,
 };
 use pvsd_proto::xpvs as binary;
 
@@ -48,10 +49,44 @@ pub async fn scenes(State(state): State<AppState>) -> Json<Vec<SceneInfo>> {
                         .iter()
                         .map(|u| (u.method.to_string(), u.reason.clone()))
                         .collect(),
+                    auto: auto_info(m),
                 }
             })
             .collect(),
     )
+}
+
+/// What `auto` answers with on a scene, and the ranking behind it.
+fn auto_info(m: &SceneMethods) -> AutoInfo {
+    let cost = m.frame_cost();
+    let ranking = m.ranking();
+    AutoInfo {
+        choice: m.auto_choice(cost).name().to_string(),
+        status: if ranking.is_some() {
+            "measured"
+        } else {
+            "unmeasured"
+        }
+        .to_string(),
+        cost_per_triangle_ns: cost.per_triangle_ns,
+        cost_per_byte_ns: cost.per_byte_ns,
+        walks: ranking.map_or_else(Vec::new, |r| r.walks.clone()),
+        frames: ranking.map_or(0, |r| r.frames),
+        ranking: ranking.map_or_else(Vec::new, |r| {
+            r.ranked(cost)
+                .into_iter()
+                .map(|(x, frame_cost_us)| RankedMethod {
+                    method: x.method.clone(),
+                    mean_cull_us: x.mean_cull_us,
+                    median_cull_us: x.median_cull_us,
+                    mean_pvs: x.mean_pvs,
+                    mean_pvs_triangles: x.mean_pvs_triangles,
+                    mean_pvs_bytes: x.mean_pvs_bytes(),
+                    frame_cost_us,
+                })
+                .collect()
+        }),
+    }
 }
 
 /// `GET /scenes/{id}/objects`: what each id means.

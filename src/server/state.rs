@@ -13,6 +13,8 @@ use super::metrics::Metrics;
 use super::session::Sessions;
 use super::walkthrough::Walkthroughs;
 use crate::cull::{MethodContext, Registry, SceneMethods};
+use crate::eval::{RankParams, rank_cached};
+use crate::scene::BakeCache;
 use crate::scene::Scene;
 
 /// Limits applied to every request.
@@ -175,6 +177,27 @@ impl AppState {
                 "the bearer token is not the admin token".into(),
             ))
         }
+    }
+
+    /// Measures every scene's methods for `auto` on a thread of its own,
+    /// one scene after another, each ranking read from or written to the
+    /// bake cache when there is one. Until a scene's ranking is in, `auto`
+    /// answers there with frustum culling; the server serves throughout
+    /// (the measuring takes one core for about a second a scene).
+    pub fn rank_in_background(
+        &self,
+        params: RankParams,
+        cache: Option<BakeCache>,
+    ) -> std::thread::JoinHandle<()> {
+        let state = self.clone();
+        std::thread::Builder::new()
+            .name("pvsd-rank".into())
+            .spawn(move || {
+                for methods in state.scenes() {
+                    methods.set_ranking(rank_cached(methods, &params, cache.as_ref()));
+                }
+            })
+            .expect("a thread can be started")
     }
 
     /// Every scene, by id.
