@@ -319,3 +319,41 @@ fn degenerate_occluders_hide_nothing() {
     let t = OcclusionTree::build(DVec3::new(0.0, 0.0, -10.0), [&wall], true, 1e-9);
     assert_eq!(t.node_count(), 1);
 }
+
+/// A camera that stands still (three frames of each view) lets a session
+/// keep its occlusion tree when it picks the same occluders again: the
+/// answers stay conservative.
+#[test]
+fn a_camera_standing_still_keeps_its_answers_conservative() {
+    use pvsd::eval::{Contender, EvalParams, WalkKind, WalkParams};
+    let office = common::prepare(office_scene(3, [0.0; 3]));
+    let walk = WalkParams {
+        kind: WalkKind::Random,
+        frames: 12,
+        viewport: common::CHECK_VIEWPORT,
+        ..WalkParams::default()
+    };
+    let cameras: Vec<Camera> = pvsd::eval::walk(office.scene(), &walk)
+        .unwrap()
+        .into_iter()
+        .flat_map(|c| [c, c, c])
+        .collect();
+    let params = EvalParams {
+        walk,
+        ..EvalParams::default()
+    };
+    let specs = [
+        "occlusion_tree",
+        "occlusion_tree:variant=fmc",
+        "supporting_planes",
+    ];
+    let contenders = specs
+        .iter()
+        .map(|s| Contender::from_spec(&office, &s.parse().unwrap()).unwrap())
+        .collect();
+    let report = pvsd::eval::run(office.scene(), contenders, &cameras, &params, |_| {}).unwrap();
+    for m in &report.methods {
+        assert!(m.mean_truth > 0.0);
+        assert_eq!(m.misses, 0, "{}: {:?}", m.method, m.miss_examples);
+    }
+}

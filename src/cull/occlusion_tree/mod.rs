@@ -27,7 +27,9 @@ use super::{
     CullCounters, CullError, CullMethod, Culler, MethodEntry, MethodError, MethodOptions,
     Occludees, Preparation, View, VisibleSet,
 };
-use crate::geom::Aabb;
+use glam::DVec3;
+
+use crate::geom::{Aabb, Plane};
 
 /// The method's registry entry; the table checks every variant and a
 /// small, history-free pick.
@@ -70,6 +72,12 @@ pub struct OcclusionTreeState {
     selection: Selection,
     /// Rebuilt each frame in the same buffers.
     tree: OcclusionTree,
+    /// What `tree` was built for: the eye, the near plane and the picked
+    /// occluders. Shadow planes pass through the eye and occluders are cut
+    /// at the near plane, so a tree serves again only a frame with all
+    /// three unchanged (a camera standing still, or turning about an axis
+    /// that keeps its near plane); then it is not rebuilt.
+    built_for: Option<(DVec3, Plane, Vec<u32>)>,
 }
 
 /// The variants, in `variant=` spelling; the first is the default.
@@ -100,6 +108,7 @@ impl CullMethod for OcclusionTreeCulling {
             variant,
             selection,
             tree: OcclusionTree::default(),
+            built_for: None,
         })
     }
 
@@ -116,35 +125,43 @@ impl CullMethod for OcclusionTreeCulling {
     ) -> Result<CullCounters, CullError> {
         let picked = state.selection.occluders_for(&self.world, view);
         let eye = view.eye();
-        let mut order: Vec<(f64, u32)> = picked
-            .iter()
-            .map(|&i| {
-                let p = &self.world.occluders.all()[i as usize].polygon;
-                (
-                    p.vertices
-                        .iter()
-                        .map(|v| v.distance_squared(eye))
-                        .fold(f64::INFINITY, f64::min),
-                    i,
-                )
-            })
-            .collect();
-        order.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let eps = plane_tolerance(&self.world.scene, eye);
-        let polygons = visible_parts(
-            &self.world.occluders,
-            order.iter().map(|&(_, i)| i),
-            view,
-            eps,
-        );
+        let near = view.frustum().planes()[0];
         let variant = state.variant;
         let occlusion = &mut state.tree;
-        occlusion.rebuild(
-            eye,
-            polygons.iter().map(|(_, p)| p),
-            variant != Variant::Fse,
-            eps,
-        );
+        let same = state
+            .built_for
+            .as_ref()
+            .is_some_and(|(e, n, p)| *e == eye && *n == near && *p == picked);
+        if !same {
+            let mut order: Vec<(f64, u32)> = picked
+                .iter()
+                .map(|&i| {
+                    let p = &self.world.occluders.all()[i as usize].polygon;
+                    (
+                        p.vertices
+                            .iter()
+                            .map(|v| v.distance_squared(eye))
+                            .fold(f64::INFINITY, f64::min),
+                        i,
+                    )
+                })
+                .collect();
+            order.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let eps = plane_tolerance(&self.world.scene, eye);
+            let polygons = visible_parts(
+                &self.world.occluders,
+                order.iter().map(|&(_, i)| i),
+                view,
+                eps,
+            );
+            occlusion.rebuild(
+                eye,
+                polygons.iter().map(|(_, p)| p),
+                variant != Variant::Fse,
+                eps,
+            );
+            state.built_for = Some((eye, near, picked));
+        }
         let occlusion = &*occlusion;
         let mut test = |_: Target, b: &Aabb| match variant {
             Variant::Fse => occlusion.box_visibility_exact(b),
@@ -157,6 +174,12 @@ impl CullMethod for OcclusionTreeCulling {
     }
 
     fn state_bytes(&self, state: &Self::State) -> usize {
-        std::mem::size_of::<Self::State>() + state.selection.heap_bytes() + state.tree.heap_bytes()
+        std::mem::size_of::<Self::State>()
+            + state.selection.heap_bytes()
+            + state.tree.heap_bytes()
+            + state
+                .built_for
+                .as_ref()
+                .map_or(0, |b| b.2.capacity() * std::mem::size_of::<u32>())
     }
 }
