@@ -210,9 +210,9 @@ fn trees_agree_with_brute_force_ray_casting() {
     let mut r = rng(5);
     let eye = DVec3::ZERO;
     let (mut invisible, mut full) = (0, 0);
-    // MOBSP's invisible answers, per in-leaf test: a tree that never
-    // answered Invisible would pass every assertion below.
-    let mut mobsp_invisible = [0usize; 2];
+    // MOBSP's invisible answers, per in-leaf test and clipping: a tree that
+    // never answered Invisible would pass every assertion below.
+    let mut mobsp_invisible = [0usize; 4];
     for round in 0..300 {
         let mut polys: Vec<ConvexPolygon> = (0..r.random_range(1..10))
             .map(|_| random_quad(&mut r))
@@ -240,17 +240,24 @@ fn trees_agree_with_brute_force_ray_casting() {
             if obsp == Visibility::Full {
                 full += 1;
             }
-            for (t, test) in [LeafTest::Exact, LeafTest::Conservative]
+            let cases = [LeafTest::Exact, LeafTest::Conservative]
                 .into_iter()
-                .enumerate()
-            {
-                let mobsp = modified.region_visibility(&b, test);
+                .flat_map(|test| [(test, false), (test, true)]);
+            for (t, (test, clip)) in cases.enumerate() {
+                let mobsp = modified.region_visibility(&b, test, clip);
+                if !clip {
+                    // Clipping the region at crossed planes only finds more hidden.
+                    let clipped = modified.region_visibility(&b, test, true);
+                    if mobsp == Visibility::Invisible {
+                        assert_eq!(clipped, Visibility::Invisible, "{b:?}");
+                    }
+                }
                 if mobsp == Visibility::Invisible {
                     mobsp_invisible[t] += 1;
                     assert_eq!(
                         hidden,
                         pts.len(),
-                        "MOBSP ({test:?}) called a visible box invisible: {b:?}"
+                        "MOBSP ({test:?}, clip {clip}) called a visible box invisible: {b:?}"
                     );
                     // Never finer than the exact tree.
                     assert_eq!(
@@ -269,6 +276,12 @@ fn trees_agree_with_brute_force_ray_casting() {
     assert!(
         mobsp_invisible.iter().all(|&n| n > 50),
         "MOBSP hides boxes with both in-leaf tests: {mobsp_invisible:?}"
+    );
+    // Fig. 8: boxes behind two occluders, sticking out of each one's shadow
+    // into the other's, are found hidden only with the region clipped.
+    assert!(
+        mobsp_invisible[1] > mobsp_invisible[0] && mobsp_invisible[3] > mobsp_invisible[2],
+        "clipping finds more hidden: {mobsp_invisible:?}"
     );
 }
 
@@ -293,7 +306,7 @@ fn degenerate_occluders_hide_nothing() {
             let t = OcclusionTree::build(eye, &polys, modified, 1e-9);
             assert_ne!(t.box_visibility_exact(&behind), Visibility::Invisible);
             assert_ne!(
-                t.region_visibility(&behind, LeafTest::Exact),
+                t.region_visibility(&behind, LeafTest::Exact, false),
                 Visibility::Invisible
             );
         }
@@ -307,12 +320,12 @@ fn degenerate_occluders_hide_nothing() {
     ]);
     let t = OcclusionTree::build(eye, [&wall], true, 1e-9);
     assert_eq!(
-        t.region_visibility(&behind, LeafTest::Exact),
+        t.region_visibility(&behind, LeafTest::Exact, false),
         Visibility::Invisible
     );
     let straddling = Aabb::new(Vec3::new(-0.1, -0.1, -11.0), Vec3::new(0.1, 0.1, -9.0));
     assert_eq!(
-        t.region_visibility(&straddling, LeafTest::Exact),
+        t.region_visibility(&straddling, LeafTest::Exact, true),
         Visibility::Partial
     );
     // The eye exactly on the wall's plane: no shadow at all.

@@ -321,20 +321,26 @@ impl OcclusionTree {
         (self.nodes.len() - 1) as u32
     }
 
-    /// The modified visibility algorithm (§6.2): the box is never split; at
-    /// a plane it crosses, both subtrees are searched.
-    pub fn region_visibility(&self, b: &Aabb, leaf_test: LeafTest) -> Visibility {
+    /// The modified visibility algorithm (§6.2): at a plane the box crosses,
+    /// both subtrees are searched with the whole box, as in the paper.
+    /// With `clip`, see [`OcclusionTree::clipped_region_visibility`].
+    pub fn region_visibility(&self, b: &Aabb, leaf_test: LeafTest, clip: bool) -> Visibility {
+        if clip {
+            return self.clipped_region_visibility(b, leaf_test);
+        }
         let mut result = Combined::default();
         // Called for every kd node and object a frame: keep it off the heap
         // while the tree is shallow enough, which it nearly always is.
         let mut stack = SmallStack::new();
-        stack.push(0);
+        stack.push(0u32);
         while let Some(n) = stack.pop() {
             let v = match &self.nodes[n as usize] {
                 Node::Out => Visibility::Full,
-                Node::In { fragment } => {
-                    self.leaf_region(&self.fragments[*fragment as usize], b, leaf_test)
-                }
+                Node::In { fragment } => self.leaf_region(
+                    &self.fragments[*fragment as usize],
+                    &Region::of(b),
+                    leaf_test,
+                ),
                 Node::Inner { plane, front, back } => {
                     let (lo, hi) = plane.box_range(b);
                     if lo > self.eps {
@@ -355,8 +361,45 @@ impl OcclusionTree {
         result.visibility()
     }
 
-    fn leaf_region(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> Visibility {
-        let (lo, hi) = f.plane.box_range(b);
+    /// The modified visibility algorithm with each side of a crossed plane
+    /// searched with the bounding box of the region's part there: an
+    /// in-leaf judges only what of the box can lie in its cell, so a node
+    /// that reaches past a wall into the shadow of the next one is not
+    /// partly visible merely for sticking out of each shadow (the paper's
+    /// Fig. 8). Finds everything [`OcclusionTree::region_visibility`] finds
+    /// hidden, and more, at the cost of clipping at every crossing.
+    fn clipped_region_visibility(&self, b: &Aabb, leaf_test: LeafTest) -> Visibility {
+        let mut result = Combined::default();
+        let mut stack = SmallStack::new();
+        stack.push((0u32, Region::of(b)));
+        while let Some((n, r)) = stack.pop() {
+            let v = match &self.nodes[n as usize] {
+                Node::Out => Visibility::Full,
+                Node::In { fragment } => {
+                    self.leaf_region(&self.fragments[*fragment as usize], &r, leaf_test)
+                }
+                Node::Inner { plane, front, back } => {
+                    let (lo, hi) = r.range(plane);
+                    if lo > self.eps {
+                        stack.push((*front, r));
+                    } else if hi < -self.eps {
+                        stack.push((*back, r));
+                    } else {
+                        stack.push((*back, r.clipped(plane, -1.0, self.eps)));
+                        stack.push((*front, r.clipped(plane, 1.0, self.eps)));
+                    }
+                    continue;
+                }
+            };
+            if result.add(v) {
+                return Visibility::Partial;
+            }
+        }
+        result.visibility()
+    }
+
+    fn leaf_region(&self, f: &Fragment, b: &Region, leaf_test: LeafTest) -> Visibility {
+        let (lo, hi) = b.range(&f.plane);
         if hi < -self.eps {
             return Visibility::Invisible;
         }
@@ -375,10 +418,9 @@ impl OcclusionTree {
 
     /// Whether the box is separated from conv(eye, fragment), with a margin:
     /// by the pyramid's faces only, or (exact) by every axis that could.
-    fn misses_pyramid(&self, f: &Fragment, b: &Aabb, leaf_test: LeafTest) -> bool {
-        let c = (b.min.as_dvec3() + b.max.as_dvec3()) * 0.5;
-        // Half-extents in f64: an f32 difference of far-apart bounds rounds.
-        let r = (b.max.as_dvec3() - b.min.as_dvec3()) * 0.5;
+    fn misses_pyramid(&self, f: &Fragment, b: &Region, leaf_test: LeafTest) -> bool {
+        let c = (b.lo + b.hi) * 0.5;
+        let r = (b.hi - b.lo) * 0.5;
         let (start, exact_from, end) = f.axes.get().unwrap_or_else(|| {
             let mut axes = self.axes.borrow_mut();
             let start = axes.len();
@@ -408,7 +450,7 @@ impl OcclusionTree {
         let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
         let e = self.eye;
         if (0..3).any(|k| hi[k] - lo[k] <= self.eps) {
-            return self.region_visibility(b, LeafTest::Exact);
+            return self.region_visibility(b, LeafTest::Exact, false);
         }
         if (0..3).all(|k| e[k] >= lo[k] - self.eps && e[k] <= hi[k] + self.eps) {
             // The eye is in (or on) the box: every face turns away, yet what
@@ -617,24 +659,23 @@ fn on_or_outside(d: f64, sign: f64, eps: f64) -> bool {
     d * sign <= ON_PLANE_SHARE * eps
 }
 
-/// A stack of node indices on the call stack, spilling to the heap only
-/// past 64 entries.
-struct SmallStack {
-    inline: [u32; 64],
+/// A stack on the call stack, spilling to the heap only past 64 entries.
+struct SmallStack<T> {
+    inline: [T; 64],
     len: usize,
-    spill: Vec<u32>,
+    spill: Vec<T>,
 }
 
-impl SmallStack {
+impl<T: Copy + Default> SmallStack<T> {
     fn new() -> Self {
         SmallStack {
-            inline: [0; 64],
+            inline: [T::default(); 64],
             len: 0,
             spill: Vec::new(),
         }
     }
 
-    fn push(&mut self, v: u32) {
+    fn push(&mut self, v: T) {
         if self.len < self.inline.len() {
             self.inline[self.len] = v;
             self.len += 1;
@@ -643,7 +684,7 @@ impl SmallStack {
         }
     }
 
-    fn pop(&mut self) -> Option<u32> {
+    fn pop(&mut self) -> Option<T> {
         if let Some(v) = self.spill.pop() {
             return Some(v);
         }
@@ -651,5 +692,82 @@ impl SmallStack {
             self.len -= 1;
             self.inline[self.len]
         })
+    }
+}
+
+/// An axis-aligned box in `f64`: a kd node's or object's box, or the
+/// bounding box of its part on one side of the shadow planes above a node.
+#[derive(Clone, Copy, Debug, Default)]
+struct Region {
+    lo: DVec3,
+    hi: DVec3,
+}
+
+impl Region {
+    fn of(b: &Aabb) -> Region {
+        Region {
+            lo: b.min.as_dvec3(),
+            hi: b.max.as_dvec3(),
+        }
+    }
+
+    /// The smallest and largest signed distance of its corners, from two of
+    /// them (as [`Plane::box_range`]). An empty region is `(+inf, -inf)`.
+    fn range(&self, p: &Plane) -> (f64, f64) {
+        if !(self.lo.cmple(self.hi).all()) {
+            return (f64::INFINITY, f64::NEG_INFINITY);
+        }
+        let n = p.normal;
+        let pick = |k: usize| {
+            if n[k] >= 0.0 {
+                (self.lo[k], self.hi[k])
+            } else {
+                (self.hi[k], self.lo[k])
+            }
+        };
+        let (x, y, z) = (pick(0), pick(1), pick(2));
+        (
+            p.signed_distance(DVec3::new(x.0, y.0, z.0)),
+            p.signed_distance(DVec3::new(x.1, y.1, z.1)),
+        )
+    }
+
+    /// A box holding its part on side `sign` of the plane (distance ≥ 0
+    /// times `sign`), grown by `eps` and kept inside the region: the corners
+    /// on that side (within `eps`) and the points where its edges cross the
+    /// plane bound that part exactly, and `eps` (~10⁷ roundings of these
+    /// magnitudes, [`plane_tolerance`](crate::cull::occlusion::tolerance::plane_tolerance))
+    /// covers the rounding of the crossings.
+    fn clipped(&self, plane: &Plane, sign: f64, eps: f64) -> Region {
+        let corner = |i: usize| {
+            DVec3::new(
+                if i & 1 == 0 { self.lo.x } else { self.hi.x },
+                if i & 2 == 0 { self.lo.y } else { self.hi.y },
+                if i & 4 == 0 { self.lo.z } else { self.hi.z },
+            )
+        };
+        let corners: [DVec3; 8] = std::array::from_fn(corner);
+        let d = corners.map(|c| plane.signed_distance(c) * sign);
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for i in 0..8 {
+            if d[i] >= -eps {
+                (lo, hi) = (lo.min(corners[i]), hi.max(corners[i]));
+            }
+            for bit in [1, 2, 4] {
+                let j = i | bit;
+                if j != i && (d[i] < 0.0) != (d[j] < 0.0) {
+                    let t = d[i] / (d[i] - d[j]);
+                    let p = corners[i] + (corners[j] - corners[i]) * t;
+                    (lo, hi) = (lo.min(p), hi.max(p));
+                }
+            }
+        }
+        if !lo.cmple(hi).all() {
+            return *self; // nothing on that side past rounding: keep it whole
+        }
+        Region {
+            lo: (lo - DVec3::splat(eps)).max(self.lo),
+            hi: (hi + DVec3::splat(eps)).min(self.hi),
+        }
     }
 }
