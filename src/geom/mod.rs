@@ -9,6 +9,7 @@ mod camera;
 mod frustum;
 mod plane;
 mod polygon;
+mod round;
 
 pub use aabb::Aabb;
 pub use camera::{
@@ -17,3 +18,4 @@ pub use camera::{
 pub use frustum::{ALL_PLANES, Frustum, PlaneMask};
 pub use plane::{Plane, Side};
 pub use polygon::{ConvexPolygon, Split};
+pub use round::{ceil_i64, floor_i64};

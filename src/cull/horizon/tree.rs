@@ -16,6 +16,8 @@
 //! only the columns it covers *wholly*, and a test looks at every column
 //! its frame *touches*.
 
+use crate::geom::{ceil_i64, floor_i64};
+
 /// Columns per block.
 const BLOCK: usize = 16;
 
@@ -97,15 +99,15 @@ impl Horizon {
     /// Adds a rectangular mask (§3.4, Fig. 4c): every column lying wholly
     /// inside `[x_lo, x_hi]` is raised to at least `height`.
     pub fn insert(&mut self, x_lo: f64, x_hi: f64, height: f64) {
-        let lo = self.column_at(grow(x_lo)).ceil();
-        let hi = self.column_at(shrink(x_hi)).floor() - 1.0;
-        if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) || hi < 0.0 || lo >= self.columns as f64 {
+        let (lo, hi) = (self.column_at(grow(x_lo)), self.column_at(shrink(x_hi)));
+        if lo.is_nan() || hi.is_nan() {
             return;
         }
-        let (lo, hi) = (
-            lo.max(0.0) as usize,
-            hi.min(self.columns as f64 - 1.0) as usize,
-        );
+        let (lo, hi) = (ceil_i64(lo), floor_i64(hi).saturating_sub(1));
+        if lo > hi || hi < 0 || lo >= self.columns as i64 {
+            return;
+        }
+        let (lo, hi) = (lo.max(0) as usize, hi.min(self.columns as i64 - 1) as usize);
         let height = shrink(height);
         for b in lo / BLOCK..=hi / BLOCK {
             if height <= self.lowest[b] {
@@ -131,15 +133,15 @@ impl Horizon {
 
     /// The columns a frame `[x_lo, x_hi]` touches, clamped to the window.
     fn touched(&self, x_lo: f64, x_hi: f64) -> Option<(usize, usize)> {
-        let lo = self.column_at(shrink(x_lo)).floor();
-        let hi = self.column_at(grow(x_hi)).floor();
-        if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) || hi < 0.0 || lo >= self.columns as f64 {
+        let (lo, hi) = (self.column_at(shrink(x_lo)), self.column_at(grow(x_hi)));
+        if lo.is_nan() || hi.is_nan() {
             return None;
         }
-        Some((
-            lo.max(0.0) as usize,
-            hi.min(self.columns as f64 - 1.0) as usize,
-        ))
+        let (lo, hi) = (floor_i64(lo), floor_i64(hi));
+        if lo > hi || hi < 0 || lo >= self.columns as i64 {
+            return None;
+        }
+        Some((lo.max(0) as usize, hi.min(self.columns as i64 - 1) as usize))
     }
 
     /// The height of column `c`.

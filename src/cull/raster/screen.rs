@@ -14,7 +14,7 @@ use glam::{DVec3, Vec3};
 
 use super::buffer::{CellRect, DepthBuffer};
 use crate::cull::View;
-use crate::geom::{Aabb, Plane};
+use crate::geom::{Aabb, Plane, ceil_i64, floor_i64};
 
 /// An occluder's corners must lie inside a pixel centre's edge planes by
 /// this share of their squared distance from the eye (times the ray's
@@ -48,21 +48,6 @@ pub struct Scratch {
     left: Vec<(f64, f64)>,
     right: Vec<(f64, f64)>,
     level: Vec<(f64, f64)>,
-}
-
-/// `⌈x⌉` for finite `x`, saturating (without a libm call on CPUs that
-/// have no rounding instruction in the baseline).
-#[inline]
-fn ceil(x: f64) -> i64 {
-    let i = x as i64;
-    if (i as f64) < x { i.saturating_add(1) } else { i }
-}
-
-/// `⌊x⌋` for finite `x`, saturating.
-#[inline]
-fn floor(x: f64) -> i64 {
-    let i = x as i64;
-    if (i as f64) > x { i.saturating_sub(1) } else { i }
 }
 
 /// What a box covers on screen.
@@ -315,7 +300,7 @@ impl Screen {
             for &(p, q) in right.iter() {
                 last = last.min(p + q * if q < 0.0 { y_bot } else { y_top });
             }
-            let (lo, hi) = (ceil(first), floor(last));
+            let (lo, hi) = (ceil_i64(first), floor_i64(last));
             if lo > hi {
                 continue;
             }
@@ -411,10 +396,10 @@ impl Screen {
         let to_x = |t: f64| (t / self.tx + 1.0) * 0.5 * self.width;
         let to_y = |t: f64| (1.0 - t / self.ty) * 0.5 * self.height;
         // Pixel centres i + ½ within the outline, widened by the slacks.
-        let i0 = ceil(to_x(x_lo) - err_x - PIXEL_SLACK - 0.5).max(0);
-        let i1 = floor(to_x(x_hi) + err_x + PIXEL_SLACK - 0.5).min(self.width as i64 - 1);
-        let j0 = ceil(to_y(y_hi) - err_y - PIXEL_SLACK - 0.5).max(0);
-        let j1 = floor(to_y(y_lo) + err_y + PIXEL_SLACK - 0.5).min(self.height as i64 - 1);
+        let i0 = ceil_i64(to_x(x_lo) - err_x - PIXEL_SLACK - 0.5).max(0);
+        let i1 = floor_i64(to_x(x_hi) + err_x + PIXEL_SLACK - 0.5).min(self.width as i64 - 1);
+        let j0 = ceil_i64(to_y(y_hi) - err_y - PIXEL_SLACK - 0.5).max(0);
+        let j1 = floor_i64(to_y(y_lo) + err_y + PIXEL_SLACK - 0.5).min(self.height as i64 - 1);
         if !(i0 <= i1 && j0 <= j1) {
             return Footprint::Nothing;
         }

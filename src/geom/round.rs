@@ -1,0 +1,55 @@
+//! Rounding to whole numbers without a libm call: the baseline x86-64
+//! target has no rounding instruction, so `f64::floor` is a function call,
+//! and the raster and the horizon round in their innermost loops.
+
+/// `⌈x⌉` for finite `x`, saturating at the ends of `i64` (NaN gives 0:
+/// callers rule it out first).
+#[inline]
+pub fn ceil_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) < x {
+        i.saturating_add(1)
+    } else {
+        i
+    }
+}
+
+/// `⌊x⌋` for finite `x`, saturating at the ends of `i64` (NaN gives 0:
+/// callers rule it out first).
+#[inline]
+pub fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn they_round_as_libm_does_and_saturate() {
+        for x in [
+            -2.5,
+            -2.0,
+            -0.5,
+            -0.0,
+            0.0,
+            0.25,
+            1.0,
+            1.5,
+            1e15 + 0.5,
+            -1e15 - 0.5,
+        ] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+            assert_eq!(ceil_i64(x), x.ceil() as i64, "{x}");
+        }
+        assert_eq!(floor_i64(1e300), i64::MAX);
+        assert_eq!(ceil_i64(-1e300), i64::MIN);
+        assert_eq!(floor_i64(f64::INFINITY), i64::MAX);
+        assert_eq!(ceil_i64(f64::NEG_INFINITY), i64::MIN);
+    }
+}
