@@ -393,3 +393,47 @@ fn the_city_ranks_every_method_it_supports() {
     let ranked: Vec<&str> = ranking.measured.iter().map(|m| m.method.as_str()).collect();
     assert_eq!(ranked, methods.names());
 }
+
+/// A blocking method measured fast on a scene runs inline there: the
+/// hand-off to the blocking pool would cost more than the cull.
+#[test]
+fn methods_measured_fast_run_inline() {
+    use pvsd::cull::Execution;
+    use pvsd::cull::ranking::{Measured, Ranking};
+    let methods = SceneMethods::prepare_with(
+        city_scene(40, 6, [0.0; 3]),
+        &Registry::standard(),
+        &test_context(),
+    );
+    let kind = |name: &str| match methods.execution_of(methods.get(name).unwrap()) {
+        Execution::Inline => "inline",
+        Execution::Blocking => "blocking",
+        Execution::Device(_) => "device",
+    };
+    assert_eq!(
+        (kind("frustum"), kind("horizon"), kind("supporting_planes")),
+        ("inline", "blocking", "blocking"),
+        "unmeasured, each where it says"
+    );
+    let measured = |method: &str, us: f64| Measured {
+        method: method.into(),
+        mean_cull_us: us,
+        median_cull_us: us,
+        mean_pvs: 1.0,
+        mean_pvs_triangles: 1.0,
+    };
+    methods.set_ranking(Ranking {
+        walks: vec!["street".into()],
+        frames: 1,
+        viewport: [64, 64],
+        measured: vec![
+            measured("frustum", 5.0),
+            measured("horizon", pvsd::cull::INLINE_BELOW_US * 0.5),
+            measured("supporting_planes", pvsd::cull::INLINE_BELOW_US * 2.0),
+        ],
+    });
+    assert_eq!(
+        (kind("frustum"), kind("horizon"), kind("supporting_planes")),
+        ("inline", "inline", "blocking")
+    );
+}

@@ -63,8 +63,8 @@ pub use method::{
     Execution, Fallback, InFrustum, Occludees,
 };
 pub use registry::{
-    AUTO_CHOICE, CullOnceError, MethodContext, MethodEntry, Preparation, Registry, SceneMethods,
-    Unsupported,
+    AUTO_CHOICE, CullOnceError, INLINE_BELOW_US, MethodContext, MethodEntry, Preparation, Registry,
+    SceneMethods, Unsupported,
 };
 pub use spec::{METHOD_NAMES, MethodError, MethodOptions, MethodSpec, OptionReader, Ranged};
 pub use view::View;

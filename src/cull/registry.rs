@@ -24,7 +24,7 @@ use super::horizon::Prisms;
 use super::occluder::Occluders;
 use super::ranking::{FrameCost, Ranking};
 use super::{ClientCache, CullStats, Culler, METHOD_NAMES, MethodError, MethodOptions, MethodSpec};
-use super::{CullError, CullJob, View, VisibleSet};
+use super::{CullError, CullJob, Execution, View, VisibleSet};
 use crate::scene::{BakeCache, Scene};
 use crate::spatial::{KdTree, KdTreeParams};
 
@@ -183,6 +183,15 @@ pub struct Registry {
     entries: Vec<MethodEntry>,
 }
 
+/// A blocking method measured at under this many microseconds a frame on a
+/// scene runs inline there ([`SceneMethods::execution_of`]): handing a cull
+/// to the blocking pool costs a wake-up and a context switch each way,
+/// which for the horizon's ~100 µs culls of the 10k city was 15% of the
+/// frames a server could serve (README, "Load tests"), while 200 µs on an
+/// async worker delays the requests queued behind it by less than the
+/// network does.
+pub const INLINE_BELOW_US: f64 = 200.0;
+
 /// The method `auto` answers with until the scene's methods are ranked
 /// ([`SceneMethods::set_ranking`]): the exact in-frustum set, which never
 /// costs much.
@@ -318,6 +327,24 @@ impl SceneMethods {
     /// The measured ranking, once [`SceneMethods::set_ranking`] gave one.
     pub fn ranking(&self) -> Option<&Ranking> {
         self.ranking.get()
+    }
+
+    /// Where `method` runs for this scene: where it says, except that a
+    /// blocking method the ranking measured at under [`INLINE_BELOW_US`] a
+    /// frame here runs inline on the async worker.
+    pub fn execution_of(&self, method: &Arc<dyn Culler>) -> Execution {
+        match method.execution() {
+            Execution::Blocking
+                if self.ranking().is_some_and(|r| {
+                    r.measured
+                        .iter()
+                        .any(|m| m.method == method.name() && m.mean_cull_us < INLINE_BELOW_US)
+                }) =>
+            {
+                Execution::Inline
+            }
+            other => other,
+        }
     }
 
     /// The prices `auto` ranks with when a request names none.
