@@ -183,13 +183,15 @@ pub struct SceneInfo {
     /// Methods it does not support, each with why (e.g. `horizon` on a
     /// scene that is no height field over a ground).
     pub unsupported: BTreeMap<String, String>,
-    /// What `auto` answers with here, and the measurements behind it.
+    /// What `auto` answers with here, and the measurements behind it
+    /// (absent from servers older than the ranking; read as unmeasured).
+    #[serde(default)]
     pub auto: AutoInfo,
 }
 
 /// `auto` on one scene: its choice at the server's prices and the ranking
 /// it chose from.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct AutoInfo {
     /// The method `auto` answers with at the server's prices.
     pub choice: String,

@@ -38,10 +38,22 @@ impl Default for RankParams {
 
 impl RankParams {
     /// The bake cache's parameter string: what the figures depend on,
-    /// pvsd's version included (a new build may cull at another speed).
+    /// the build included (another build may cull at another speed): pvsd's
+    /// version and the running executable's size and modification time.
     fn cache_key(&self) -> String {
+        let build = std::env::current_exe()
+            .and_then(std::fs::metadata)
+            .map(|m| {
+                let modified = m
+                    .modified()
+                    .ok()
+                    .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                    .map_or(0, |d| d.as_secs());
+                format!("{}-{modified}", m.len())
+            })
+            .unwrap_or_else(|_| "unknown".into());
         format!(
-            "ranking v1 pvsd {} frames {} viewport {}x{} seed {}",
+            "ranking v1 pvsd {} build {build} frames {} viewport {}x{} seed {}",
             env!("CARGO_PKG_VERSION"),
             self.frames_per_walk,
             self.viewport[0],
