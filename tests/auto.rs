@@ -165,6 +165,13 @@ async fn auto_answers_with_the_measured_best_at_the_requests_prices() {
     let auto = &scenes[0].auto;
     assert_eq!(auto.status, "measured");
     assert_eq!(auto.walks, ["street", "random"]);
+    // What neither auto chose nor a client asked for is out of memory now;
+    // the requests below build what they name again.
+    let office = state.scenes().next().unwrap().clone();
+    let resident = office.resident();
+    assert!(resident.len() < office.names().len(), "{resident:?}");
+    assert!(resident.contains(&"frustum"), "{resident:?}");
+    assert!(resident.contains(&auto.choice.as_str()), "{resident:?}");
     assert_eq!(auto.cost_per_triangle_ns, 2.0);
     assert_eq!(auto.choice, auto.ranking[0].method, "the cheapest first");
     for r in &auto.ranking {
@@ -272,6 +279,107 @@ async fn auto_answers_with_the_measured_best_at_the_requests_prices() {
     let mut added: Vec<u32> = serde_json::from_value(body["added"].clone()).unwrap();
     added.sort_unstable();
     assert_eq!(added, direct.visible);
+    assert!(office.resident().contains(&chosen.stats.method.as_str()));
+}
+
+/// A released method's data is freed, and the method built again on its
+/// first ask answers as it did.
+#[test]
+fn methods_no_client_asked_for_are_released_and_answer_the_same_when_asked() {
+    use pvsd::cull::View;
+    use pvsd::cull::ranking::{Measured, Ranking};
+    use pvsd::geom::Camera;
+    let methods = SceneMethods::prepare_with(
+        city_scene(40, 6, [0.0; 3]),
+        &Registry::standard(),
+        &test_context(),
+    );
+    let names = methods.names();
+    for needed in ["frustum", "horizon", "occlusion_tree", "supporting_planes"] {
+        assert!(names.contains(&needed), "{names:?}");
+    }
+    let camera = Camera {
+        eye: glam::DVec3::new(0.5, 1.7, 0.5),
+        forward: glam::DVec3::new(1.0, 0.0, 0.3),
+        aspect: 1.6,
+        viewport: [320, 200],
+        ..Camera::default()
+    };
+    let view = View::new(camera, methods.scene()).unwrap();
+    let answers = |methods: &SceneMethods| -> Vec<(String, Vec<u32>)> {
+        names
+            .iter()
+            .map(|&name| {
+                let mut out = pvsd::cull::VisibleSet::new();
+                methods
+                    .cull_once(&name.parse().unwrap(), &view, &mut out)
+                    .unwrap();
+                (name.to_string(), out.ids().to_vec())
+            })
+            .collect()
+    };
+    // Asking marks a method as a client's: the answers before come from
+    // a twin preparation.
+    let before = answers(&SceneMethods::prepare_with(
+        city_scene(40, 6, [0.0; 3]),
+        &Registry::standard(),
+        &test_context(),
+    ));
+    let measured = |method: &str, us: f64| Measured {
+        method: method.into(),
+        mean_cull_us: us,
+        median_cull_us: us,
+        mean_pvs: 1.0,
+        mean_pvs_triangles: 1.0,
+    };
+    methods.set_ranking(Ranking {
+        walks: vec!["street".into()],
+        frames: 1,
+        viewport: [64, 64],
+        measured: names
+            .iter()
+            .map(|&n| measured(n, if n == "horizon" { 1.0 } else { 100.0 }))
+            .collect(),
+    });
+    assert_eq!(methods.auto_choice(methods.frame_cost()), "horizon");
+    // Asked by a client before the release, kept.
+    methods.get("supporting_planes").unwrap();
+    let tree = Arc::downgrade(&methods.get("occlusion_tree").unwrap());
+    methods.methods(); // ranking's use is not a client's ask
+    let released = methods.release_unasked();
+    assert!(!released.contains(&"supporting_planes"), "{released:?}");
+    assert!(!released.contains(&"occlusion_tree"), "{released:?}");
+    assert!(tree.upgrade().is_some());
+    let mut expected: Vec<&str> = names
+        .iter()
+        .copied()
+        .filter(|n| !["frustum", "horizon", "supporting_planes", "occlusion_tree"].contains(n))
+        .collect();
+    expected.retain(|&n| n != "gpu"); // a device method stays
+    assert_eq!(released, expected);
+    assert!(!released.is_empty());
+    assert!(!methods.resident().contains(&"raster"), "{released:?}");
+
+    // A method released while no one held it is freed.
+    let fresh = SceneMethods::prepare_with(
+        city_scene(40, 6, [0.0; 3]),
+        &Registry::standard(),
+        &test_context(),
+    );
+    let gone = Arc::downgrade(
+        &fresh.methods()[fresh
+            .names()
+            .iter()
+            .position(|&n| n == "occlusion_tree")
+            .unwrap()],
+    );
+    assert!(fresh.release_unasked().contains(&"occlusion_tree"));
+    assert!(gone.upgrade().is_none(), "its data is freed");
+    assert!(fresh.get("occlusion_tree").is_ok());
+
+    // Built again on the ask, the same answers.
+    assert_eq!(answers(&methods), before);
+    assert_eq!(methods.resident(), names);
 }
 
 /// `pvsd bake` ranks the methods and keeps the ranking in the bake folder;
@@ -405,7 +513,7 @@ fn methods_measured_fast_run_inline() {
         &Registry::standard(),
         &test_context(),
     );
-    let kind = |name: &str| match methods.execution_of(methods.get(name).unwrap()) {
+    let kind = |name: &str| match methods.execution_of(methods.get(name).unwrap().as_ref()) {
         Execution::Inline => "inline",
         Execution::Blocking => "blocking",
         Execution::Device(_) => "device",

@@ -197,7 +197,7 @@ impl SceneMethods {
         mut job: CullJob,
     ) -> Result<Culled, Unanswered> {
         let start = Instant::now();
-        let ran = match self.execution_of(method) {
+        let ran = match self.execution_of(method.as_ref()) {
             Execution::Inline => {
                 let result = run_caught(&**method, &mut job);
                 ran(job, result)

@@ -14,7 +14,8 @@
 //! (tests/conservative.rs) take it from there.
 
 use std::path::PathBuf;
-use std::sync::{Arc, OnceLock};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 use super::device::DeviceQueue;
 use super::dispatch::cull_here;
@@ -92,6 +93,36 @@ impl<'a> Preparation<'a> {
             kd_tree: OnceLock::new(),
             occluders: OnceLock::new(),
             prisms: OnceLock::new(),
+        }
+    }
+
+    /// A preparation that starts from what an earlier one built and is
+    /// still held by some method (a released method built again shares
+    /// the kd-tree and the occluders of those still resident).
+    fn resuming(scene: &'a Arc<Scene>, context: &'a MethodContext, shared: &Shared) -> Self {
+        let prep = Preparation::new(scene, context);
+        let _ = prep.kd_tree.set(shared.kd_tree.clone());
+        if let Some(occluders) = shared.occluders.upgrade() {
+            let _ = prep.occluders.set(Some(occluders));
+        }
+        if let Some(prisms) = shared.prisms.upgrade() {
+            let _ = prep.prisms.set(Ok(prisms));
+        }
+        prep
+    }
+
+    /// What it built that later builds may share.
+    fn shared(&self) -> Shared {
+        Shared {
+            kd_tree: self.kd_tree(),
+            occluders: match self.occluders.get() {
+                Some(Some(o)) => Arc::downgrade(o),
+                _ => Weak::new(),
+            },
+            prisms: match self.prisms.get() {
+                Some(Ok(p)) => Arc::downgrade(p),
+                _ => Weak::new(),
+            },
         }
     }
 
@@ -240,14 +271,40 @@ pub struct Unsupported {
     pub reason: String,
 }
 
+/// What a preparation built that a released method, built again, reuses:
+/// the kd-tree (frustum culling keeps it), and the occluders and prisms
+/// while any method still holds them.
+struct Shared {
+    kd_tree: Arc<KdTree>,
+    occluders: Weak<Occluders>,
+    prisms: Weak<Prisms>,
+}
+
+/// One supported method of a scene: built at preparation, released by
+/// [`SceneMethods::release_unasked`] while no client has asked for it, and
+/// built again, the same, on its first ask.
+struct Slot {
+    entry: MethodEntry,
+    /// The method while its data is in memory.
+    resident: Mutex<Option<Arc<dyn Culler>>>,
+    /// Whether a client has asked for it (it then stays resident).
+    asked: AtomicBool,
+    /// Whether its build reads a device, which may differ the next time:
+    /// such a method is never released.
+    on_device: bool,
+}
+
 /// A scene with the methods it supports, ready to answer views.
 ///
-/// Built once per scene at load; everything in it is read-only afterwards
-/// and shared between requests.
+/// Built once per scene at load; what it answers with is read-only
+/// afterwards and shared between requests. A method whose data no
+/// ranking chose and no client asked for may be released
+/// ([`SceneMethods::release_unasked`]) and is then built again when first
+/// asked: the same build of the same scene, so the same answers.
 pub struct SceneMethods {
     scene: Arc<Scene>,
     /// Supported methods, in registry order.
-    methods: Vec<Arc<dyn Culler>>,
+    slots: Vec<Slot>,
     /// The registry's other methods, with why.
     unsupported: Vec<Unsupported>,
     /// What answers when a method fails: frustum culling, which cannot.
@@ -258,6 +315,21 @@ pub struct SceneMethods {
     ranking: OnceLock<Ranking>,
     /// The prices `auto` ranks with when a request names none.
     frame_cost: FrameCost,
+    /// The context the methods were built in, to build a released one again.
+    context: MethodContext,
+    /// What builds share; locked while a released method is built again,
+    /// so two first asks build it once.
+    shared: Mutex<Shared>,
+}
+
+impl std::fmt::Debug for SceneMethods {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SceneMethods")
+            .field("scene", &self.scene.id)
+            .field("methods", &self.names())
+            .field("resident", &self.resident())
+            .finish_non_exhaustive()
+    }
 }
 
 impl SceneMethods {
@@ -289,7 +361,12 @@ impl SceneMethods {
             match built {
                 Ok(method) => {
                     debug_assert_eq!(method.name(), entry.name, "an entry builds its own method");
-                    methods.push(method);
+                    methods.push(Slot {
+                        entry: *entry,
+                        on_device: matches!(method.execution(), Execution::Device(_)),
+                        resident: Mutex::new(Some(method)),
+                        asked: AtomicBool::new(false),
+                    });
                 }
                 Err(reason) => unsupported.push(Unsupported {
                     method: entry.name,
@@ -297,8 +374,8 @@ impl SceneMethods {
                 }),
             }
         }
-        let fallback: Arc<dyn Culler> = match methods.iter().find(|m| m.name() == "frustum") {
-            Some(f) => f.clone(),
+        let fallback: Arc<dyn Culler> = match methods.iter().find(|m| m.entry.name == "frustum") {
+            Some(f) => f.built().expect("just built"),
             None => Arc::new(FrustumCulling::new(scene.clone(), prep.kd_tree())),
         };
         let known = registry
@@ -307,14 +384,17 @@ impl SceneMethods {
             .map(|e| e.name)
             .chain(["auto"])
             .collect();
+        let shared = prep.shared();
         SceneMethods {
             scene,
-            methods,
+            slots: methods,
             unsupported,
             fallback,
             known,
             ranking: OnceLock::new(),
             frame_cost: context.frame_cost,
+            context: context.clone(),
+            shared: Mutex::new(shared),
         }
     }
 
@@ -332,7 +412,7 @@ impl SceneMethods {
     /// Where `method` runs for this scene: where it says, except that a
     /// blocking method the ranking measured at under [`INLINE_BELOW_US`] a
     /// frame here runs inline on the async worker.
-    pub fn execution_of(&self, method: &Arc<dyn Culler>) -> Execution {
+    pub fn execution_of(&self, method: &dyn Culler) -> Execution {
         match method.execution() {
             Execution::Blocking
                 if self.ranking().is_some_and(|r| {
@@ -353,30 +433,77 @@ impl SceneMethods {
     }
 
     /// The method `auto` answers with at these prices: the ranking's
-    /// cheapest, or [`AUTO_CHOICE`] before there is a ranking.
-    pub fn auto_choice(&self, cost: FrameCost) -> &Arc<dyn Culler> {
-        let name = self
-            .ranking()
-            .and_then(|r| r.best(cost))
-            .unwrap_or(AUTO_CHOICE);
-        self.methods
+    /// cheapest, or [`AUTO_CHOICE`] before there is a ranking (or when the
+    /// ranking's best is not supported here).
+    pub fn auto_choice(&self, cost: FrameCost) -> &'static str {
+        let best = self.ranking().and_then(|r| r.best(cost));
+        self.slots
             .iter()
-            .find(|m| m.name() == name)
-            .unwrap_or(&self.fallback)
+            .map(|s| s.entry.name)
+            .find(|&name| Some(name) == best)
+            .unwrap_or(self.fallback.name())
     }
 
     /// The method a spec names with the options it gets: `auto` reads its
     /// prices (`cost_per_triangle_ns`, `cost_per_byte_ns`) and hands its
-    /// choice the choice's defaults.
+    /// choice the choice's defaults. A released method is built again
+    /// here (see [`SceneMethods::is_resident`]).
     pub fn resolve(
         &self,
         spec: &MethodSpec,
-    ) -> Result<(&Arc<dyn Culler>, MethodOptions), MethodError> {
+    ) -> Result<(Arc<dyn Culler>, MethodOptions), MethodError> {
         if spec.name == "auto" {
             let cost = FrameCost::read(&spec.options, self.frame_cost)?;
-            return Ok((self.auto_choice(cost), MethodOptions::default()));
+            return Ok((self.get(self.auto_choice(cost))?, MethodOptions::default()));
         }
         Ok((self.get(&spec.name)?, spec.options.clone()))
+    }
+
+    /// Whether the method a spec names is in memory, so that resolving it
+    /// takes no build; false for a name it does not know (resolving that
+    /// fails at once).
+    pub fn is_resident(&self, spec: &MethodSpec) -> bool {
+        let name = if spec.name == "auto" {
+            match FrameCost::read(&spec.options, self.frame_cost) {
+                Ok(cost) => self.auto_choice(cost),
+                Err(_) => return true,
+            }
+        } else {
+            spec.name.as_str()
+        };
+        self.slot(name).is_none_or(|s| s.built().is_some())
+    }
+
+    /// The supported methods whose data is in memory, in registry order.
+    pub fn resident(&self) -> Vec<&'static str> {
+        self.slots
+            .iter()
+            .filter(|s| s.built().is_some())
+            .map(|s| s.entry.name)
+            .collect()
+    }
+
+    /// Releases every method no client has asked for, except frustum
+    /// culling (the fallback), `auto`'s choice at the configured prices and
+    /// device methods; returns the names released. Its data is freed once
+    /// the last client holding it lets go, and built again on the next ask.
+    pub fn release_unasked(&self) -> Vec<&'static str> {
+        let keep = self.auto_choice(self.frame_cost);
+        let mut released = Vec::new();
+        for slot in &self.slots {
+            let name = slot.entry.name;
+            if name == self.fallback.name()
+                || name == keep
+                || slot.on_device
+                || slot.asked.load(Ordering::Acquire)
+            {
+                continue;
+            }
+            if slot.resident.lock().expect("slot lock").take().is_some() {
+                released.push(name);
+            }
+        }
+        released
     }
 
     /// Methods of the registry this scene does not support, with why.
@@ -391,12 +518,22 @@ impl SceneMethods {
 
     /// Names of the methods this scene supports, in registry order (`auto` excluded).
     pub fn names(&self) -> Vec<&'static str> {
-        self.methods.iter().map(|m| m.name()).collect()
+        self.slots.iter().map(|s| s.entry.name).collect()
     }
 
-    /// The supported methods, in registry order.
-    pub fn methods(&self) -> &[Arc<dyn Culler>] {
-        &self.methods
+    /// The supported methods, in registry order, building any released one
+    /// again (ranking runs them all; a client's ask goes through
+    /// [`SceneMethods::get`]). One that cannot be built again is left out,
+    /// with a logged reason.
+    pub fn methods(&self) -> Vec<Arc<dyn Culler>> {
+        self.slots
+            .iter()
+            .filter_map(|s| {
+                self.built(s)
+                    .inspect_err(|e| tracing::error!(error = %e, "method left out"))
+                    .ok()
+            })
+            .collect()
     }
 
     /// The method that answers when another fails (frustum culling).
@@ -404,14 +541,21 @@ impl SceneMethods {
         &self.fallback
     }
 
-    /// The method called `name`; `auto` is its choice at the configured
+    /// The method called `name`, built again if it was released, and kept
+    /// in memory from now on; `auto` is its choice at the configured
     /// prices ([`SceneMethods::auto_choice`]).
-    pub fn get(&self, name: &str) -> Result<&Arc<dyn Culler>, MethodError> {
-        if name == "auto" {
-            return Ok(self.auto_choice(self.frame_cost));
+    pub fn get(&self, name: &str) -> Result<Arc<dyn Culler>, MethodError> {
+        let name = if name == "auto" {
+            self.auto_choice(self.frame_cost)
+        } else {
+            name
+        };
+        if let Some(slot) = self.slot(name) {
+            slot.asked.store(true, Ordering::Release);
+            return self.built(slot);
         }
-        if let Some(m) = self.methods.iter().find(|m| m.name() == name) {
-            return Ok(m);
+        if name == self.fallback.name() {
+            return Ok(self.fallback.clone());
         }
         if self.known.contains(&name) || METHOD_NAMES.contains(&name) {
             Err(MethodError::Unsupported {
@@ -429,6 +573,39 @@ impl SceneMethods {
         }
     }
 
+    fn slot(&self, name: &str) -> Option<&Slot> {
+        self.slots.iter().find(|s| s.entry.name == name)
+    }
+
+    /// The slot's method, built again from the scene and context if it was
+    /// released.
+    fn built(&self, slot: &Slot) -> Result<Arc<dyn Culler>, MethodError> {
+        if let Some(method) = slot.built() {
+            return Ok(method);
+        }
+        let mut shared = self.shared.lock().expect("shared lock");
+        // Another first ask may have built it while this one waited.
+        if let Some(method) = slot.built() {
+            return Ok(method);
+        }
+        let start = std::time::Instant::now();
+        let prep = Preparation::resuming(&self.scene, &self.context, &shared);
+        let method = (slot.entry.build)(&prep).map_err(|reason| MethodError::NotRebuilt {
+            name: slot.entry.name.into(),
+            scene: self.scene.id.clone(),
+            reason,
+        })?;
+        tracing::info!(
+            scene = %self.scene.id,
+            method = slot.entry.name,
+            ms = start.elapsed().as_secs_f64() * 1e3,
+            "built a released method again on its first ask"
+        );
+        *shared = prep.shared();
+        *slot.resident.lock().expect("slot lock") = Some(method.clone());
+        Ok(method)
+    }
+
     /// Resolves a spec to its method and a fresh client cache.
     pub fn prepare_client(
         &self,
@@ -436,7 +613,7 @@ impl SceneMethods {
     ) -> Result<(Arc<dyn Culler>, ClientCache), MethodError> {
         let (method, options) = self.resolve(spec)?;
         let cache = method.new_cache(&options)?;
-        Ok((method.clone(), cache))
+        Ok((method, cache))
     }
 
     /// One stateless answer on this thread: a fresh cache, one view, and
@@ -453,6 +630,13 @@ impl SceneMethods {
         let culled = cull_here(&self.scene, &method, CullJob::new(*view, cache))?;
         *out = culled.job.out;
         Ok(culled.stats)
+    }
+}
+
+impl Slot {
+    /// The method, if it is in memory.
+    fn built(&self) -> Option<Arc<dyn Culler>> {
+        self.resident.lock().expect("slot lock").clone()
     }
 }
 

@@ -80,6 +80,17 @@ pub enum MethodError {
         /// What is wrong.
         problem: String,
     },
+    /// A method the scene supports, released while unused, could not be
+    /// built again ([`super::SceneMethods::release_unasked`]).
+    #[error("method '{name}' of scene '{scene}' could not be prepared again: {reason}")]
+    NotRebuilt {
+        /// The method.
+        name: String,
+        /// The scene.
+        scene: String,
+        /// Why its build failed.
+        reason: String,
+    },
 }
 
 fn known_list(known: &[&str]) -> String {

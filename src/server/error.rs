@@ -162,17 +162,21 @@ impl ApiError {
             ApiError::UnknownWalkthrough(_) => {
                 (StatusCode::NOT_FOUND, ErrorCode::UnknownWalkthrough)
             }
-            ApiError::Method(e) => (
-                StatusCode::BAD_REQUEST,
-                match e {
-                    MethodError::Unknown { .. } => ErrorCode::UnknownMethod,
-                    MethodError::Unsupported { .. } => ErrorCode::UnsupportedMethod,
-                    MethodError::UnknownOption { .. } => ErrorCode::UnknownOption,
-                    MethodError::InvalidOption { .. } | MethodError::Malformed { .. } => {
-                        ErrorCode::InvalidOption
-                    }
-                },
-            ),
+            ApiError::Method(e) => match e {
+                MethodError::Unknown { .. } => (StatusCode::BAD_REQUEST, ErrorCode::UnknownMethod),
+                MethodError::Unsupported { .. } => {
+                    (StatusCode::BAD_REQUEST, ErrorCode::UnsupportedMethod)
+                }
+                MethodError::UnknownOption { .. } => {
+                    (StatusCode::BAD_REQUEST, ErrorCode::UnknownOption)
+                }
+                MethodError::InvalidOption { .. } | MethodError::Malformed { .. } => {
+                    (StatusCode::BAD_REQUEST, ErrorCode::InvalidOption)
+                }
+                MethodError::NotRebuilt { .. } => {
+                    (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Internal)
+                }
+            },
             ApiError::NoRoute { .. } => (StatusCode::NOT_FOUND, ErrorCode::NotFound),
             ApiError::MethodNotAllowed { .. } => {
                 (StatusCode::METHOD_NOT_ALLOWED, ErrorCode::MethodNotAllowed)

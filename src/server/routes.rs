@@ -22,7 +22,7 @@ use super::extract::{RawBody, parse};
 use super::session::Session;
 use super::state::AppState;
 use super::wire::{BoundsExt, MoveRequestExt, ViewRequestExt, method_spec};
-use crate::cull::{CullJob, MethodSpec, SceneMethods, View};
+use crate::cull::{ClientCache, CullJob, Culler, MethodSpec, SceneMethods, View};
 use crate::scene::MoveError;
 
 /// `GET /healthz`: 200 while the server runs.
@@ -61,7 +61,7 @@ fn auto_info(m: &SceneMethods) -> AutoInfo {
     let cost = m.frame_cost();
     let ranking = m.ranking();
     AutoInfo {
-        choice: m.auto_choice(cost).name().to_string(),
+        choice: m.auto_choice(cost).to_string(),
         status: if ranking.is_some() {
             "measured"
         } else {
@@ -167,7 +167,7 @@ pub async fn visible(
     let req: ViewRequest = parse(&body)?;
     req.check_stateless()?;
     let spec = req.method_spec()?;
-    let (method, cache) = methods.prepare_client(&spec)?;
+    let (method, cache) = prepare_client(methods, &spec).await?;
     let view = View::new(req.camera(), methods.scene())?;
     let culled = methods.cull(&method, CullJob::new(view, cache)).await?;
     let (out, stats) = (culled.job.out, culled.stats);
@@ -181,6 +181,23 @@ pub async fn visible(
         stats: stats.into(),
     };
     Ok(json_body(answer.to_json()))
+}
+
+/// A client's method and cache. A method released while unused is built
+/// again on the blocking pool, since that can take seconds, which the
+/// other requests on this async worker must not wait for.
+async fn prepare_client(
+    methods: &Arc<SceneMethods>,
+    spec: &MethodSpec,
+) -> Result<(Arc<dyn Culler>, ClientCache), ApiError> {
+    if methods.is_resident(spec) {
+        return Ok(methods.prepare_client(spec)?);
+    }
+    let (methods, spec) = (methods.clone(), spec.clone());
+    tokio::task::spawn_blocking(move || methods.prepare_client(&spec))
+        .await
+        .map_err(|e| ApiError::Internal(format!("building a method failed: {e}")))?
+        .map_err(ApiError::from)
 }
 
 /// The scene and method spec of a `SessionRequest` body (sessions and
@@ -201,7 +218,7 @@ pub async fn create_session(
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<SessionCreated>), ApiError> {
     let (methods, spec) = scene_and_spec(&state, &body)?;
-    let (method, cache) = methods.prepare_client(&spec)?;
+    let (method, cache) = prepare_client(&methods, &spec).await?;
     let name = method.name().to_string();
     let session = state
         .sessions()
@@ -271,7 +288,7 @@ pub async fn create_walkthrough(
 ) -> Result<(StatusCode, Json<WalkthroughCreated>), ApiError> {
     let (methods, spec) = scene_and_spec(&state, &body)?;
     // Refuse a bad method now rather than at the first user.
-    let method = methods.prepare_client(&spec)?.0.name();
+    let method = prepare_client(&methods, &spec).await?.0.name();
     let w = state.walkthroughs().create(methods, spec, method);
     Ok((
         StatusCode::CREATED,
@@ -288,7 +305,7 @@ pub async fn join_walkthrough(
     Path(wid): Path<String>,
 ) -> Result<(StatusCode, Json<UserJoined>), ApiError> {
     let w = state.walkthroughs().get(&wid)?;
-    let (method, cache) = w.scene.prepare_client(&w.spec)?;
+    let (method, cache) = prepare_client(&w.scene, &w.spec).await?;
     let user = w.join();
     let user_id = user.id.clone();
     let session = state

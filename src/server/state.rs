@@ -183,7 +183,10 @@ impl AppState {
     /// one scene after another, each ranking read from or written to the
     /// bake cache when there is one. Until a scene's ranking is in, `auto`
     /// answers there with frustum culling; the server serves throughout
-    /// (the measuring takes one core for about a second a scene).
+    /// (the measuring takes one core for about a second a scene). Once a
+    /// scene is ranked, the methods neither `auto` chose nor a client asked
+    /// for are released ([`SceneMethods::release_unasked`]) until first
+    /// asked.
     pub fn rank_in_background(
         &self,
         params: RankParams,
@@ -195,6 +198,13 @@ impl AppState {
             .spawn(move || {
                 for methods in state.scenes() {
                     methods.set_ranking(rank_cached(methods, &params, cache.as_ref()));
+                    let released = methods.release_unasked();
+                    tracing::info!(
+                        scene = %methods.scene().id,
+                        auto = methods.auto_choice(methods.frame_cost()),
+                        released = ?released,
+                        "ranked; methods no client asked for are released until asked"
+                    );
                 }
             })
             .expect("a thread can be started")
