@@ -8,6 +8,7 @@ use std::sync::Arc;
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
+use common::router::{NO_BODY, call};
 use common::{city_scene, fetch, shared_scene};
 use http_body_util::BodyExt;
 use pvsd::cull::{MethodSpec, View, VisibleSet};
@@ -21,37 +22,15 @@ fn state() -> AppState {
     AppState::new(vec![city_scene(200, 3, [0.0; 3])], Limits::default()).unwrap()
 }
 
-async fn call(
-    state: &AppState,
-    method: &str,
-    uri: &str,
-    body: Option<&str>,
-) -> (StatusCode, Value) {
-    let req = Request::builder().method(method).uri(uri);
-    let req = match body {
-        Some(b) => req
-            .header("content-type", "application/json")
-            .body(Body::from(b.to_string())),
-        None => req.body(Body::empty()),
-    }
-    .unwrap();
-    let res = app(state.clone()).oneshot(req).await.unwrap();
-    let status = res.status();
-    let bytes = res.into_body().collect().await.unwrap().to_bytes();
-    let value = serde_json::from_slice(&bytes)
-        .unwrap_or_else(|_| Value::String(String::from_utf8_lossy(&bytes).into()));
-    (status, value)
-}
-
 const VIEW: &str = r#"{"eye":[0,1.7,0],"forward":[1,0,0.2],"up":[0,1,0],"fov_y_deg":60,"aspect":1.6,
     "near":0.1,"far":10000,"viewport":[1024,768],"method":"frustum","options":{}}"#;
 
 #[tokio::test]
 async fn health_scenes_and_objects() {
     let s = state();
-    let (status, body) = call(&s, "GET", "/healthz", None).await;
+    let (status, body) = call(&s, "GET", "/healthz", NO_BODY).await;
     assert_eq!((status, body), (StatusCode::OK, json!("ok")));
-    let (status, body) = call(&s, "GET", "/scenes", None).await;
+    let (status, body) = call(&s, "GET", "/scenes", NO_BODY).await;
     assert_eq!(status, StatusCode::OK);
     let scenes: Vec<SceneInfo> = serde_json::from_value(body).unwrap();
     assert_eq!(scenes.len(), 1);
@@ -78,7 +57,7 @@ async fn health_scenes_and_objects() {
             _ => panic!("{method} unsupported: {why}"),
         }
     }
-    let (status, body) = call(&s, "GET", "/scenes/city/objects", None).await;
+    let (status, body) = call(&s, "GET", "/scenes/city/objects", NO_BODY).await;
     assert_eq!(status, StatusCode::OK);
     let objects: Vec<ObjectInfo> = serde_json::from_value(body).unwrap();
     assert_eq!(objects.len(), 201);
@@ -416,7 +395,7 @@ async fn horizon_answers_with_areas_when_asked_and_scenes_say_why_not() {
         false,
     );
     let s = AppState::new(vec![Arc::new(b.finish())], Limits::default()).unwrap();
-    let (_, v) = call(&s, "GET", "/scenes", None).await;
+    let (_, v) = call(&s, "GET", "/scenes", NO_BODY).await;
     let scenes: Vec<SceneInfo> = serde_json::from_value(v).unwrap();
     assert!(!scenes[0].methods.contains(&"horizon".to_string()));
     assert!(scenes[0].unsupported["horizon"].contains("height field"));
@@ -438,7 +417,7 @@ async fn an_unknown_scene_is_404_whatever_the_body() {
 async fn a_scene_without_triangles_has_null_bounds() {
     let empty = Arc::new(pvsd::scene::SceneBuilder::new("void").finish());
     let s = AppState::new(vec![empty], Limits::default()).unwrap();
-    let (status, body) = call(&s, "GET", "/scenes", None).await;
+    let (status, body) = call(&s, "GET", "/scenes", NO_BODY).await;
     assert_eq!(status, StatusCode::OK);
     assert_eq!(body[0]["bounds"], Value::Null, "{body}");
     let (status, body) = call(&s, "POST", "/scenes/void/visible", Some(VIEW)).await;
@@ -449,21 +428,21 @@ async fn a_scene_without_triangles_has_null_bounds() {
 #[tokio::test]
 async fn unknown_routes_and_methods_are_json_errors() {
     let s = state();
-    let (status, body) = call(&s, "GET", "/nope", None).await;
+    let (status, body) = call(&s, "GET", "/nope", NO_BODY).await;
     assert_eq!(status, StatusCode::NOT_FOUND);
     assert_eq!(body["error"]["code"], "not_found");
-    let (status, body) = call(&s, "GET", "/scenes/city/visible", None).await;
+    let (status, body) = call(&s, "GET", "/scenes/city/visible", NO_BODY).await;
     assert_eq!(status, StatusCode::METHOD_NOT_ALLOWED);
     assert_eq!(body["error"]["code"], "method_not_allowed");
-    let (status, body) = call(&s, "GET", "/scenes/ghost/objects", None).await;
+    let (status, body) = call(&s, "GET", "/scenes/ghost/objects", NO_BODY).await;
     assert_eq!(status, StatusCode::NOT_FOUND);
     assert_eq!(body["error"]["code"], "unknown_scene");
     // Made-up HTTP methods are answered, and do not each get a metric series.
     for m in ["BREW", "WHEN", "XYZZY"] {
-        let (status, _) = call(&s, m, "/scenes", None).await;
+        let (status, _) = call(&s, m, "/scenes", NO_BODY).await;
         assert_eq!(status, StatusCode::METHOD_NOT_ALLOWED);
     }
-    let (_, metrics) = call(&s, "GET", "/metrics", None).await;
+    let (_, metrics) = call(&s, "GET", "/metrics", NO_BODY).await;
     let text = metrics.as_str().unwrap();
     assert!(
         text.contains(r#"route="/scenes",method="other",status="405"} 3"#),
@@ -477,7 +456,7 @@ async fn metrics_count_requests_by_route_and_culls_by_method() {
     let s = state();
     call(&s, "POST", "/scenes/city/visible", Some(VIEW)).await;
     call(&s, "POST", "/scenes/city/visible", Some("{")).await;
-    let (status, body) = call(&s, "GET", "/metrics", None).await;
+    let (status, body) = call(&s, "GET", "/metrics", NO_BODY).await;
     assert_eq!(status, StatusCode::OK);
     let text = body.as_str().unwrap();
     assert!(

@@ -7,17 +7,15 @@ mod common;
 use std::path::Path;
 use std::sync::Arc;
 
-use axum::body::Body;
-use axum::http::{Request, StatusCode};
+use axum::http::StatusCode;
+use common::router::{NO_BODY, call};
 use common::{city_scene, office_scene, test_context};
-use http_body_util::BodyExt;
 use pvsd::cull::ranking::FrameCost;
 use pvsd::cull::{MethodSpec, Registry, SceneMethods};
 use pvsd::eval::{RankParams, rank};
-use pvsd::server::{AppState, Limits, app};
+use pvsd::server::{AppState, Limits};
 use pvsd_proto::json::{SceneInfo, VisibleResponse};
 use serde_json::{Value, json};
-use tower::ServiceExt;
 
 /// Few small frames: the ranking's logic, not its figures, is under test.
 const QUICK: RankParams = RankParams {
@@ -103,29 +101,6 @@ fn a_scene_with_no_room_at_eye_height_is_ranked_from_around_it() {
     assert!(!ranking.measured.is_empty());
 }
 
-async fn call(
-    state: &AppState,
-    method: &str,
-    uri: &str,
-    body: Option<Value>,
-) -> (StatusCode, Value) {
-    let req = Request::builder().method(method).uri(uri);
-    let req = match body {
-        Some(b) => req
-            .header("content-type", "application/json")
-            .body(Body::from(b.to_string())),
-        None => req.body(Body::empty()),
-    }
-    .unwrap();
-    let res = app(state.clone()).oneshot(req).await.unwrap();
-    let status = res.status();
-    let bytes = res.into_body().collect().await.unwrap().to_bytes();
-    (
-        status,
-        serde_json::from_slice(&bytes).unwrap_or(Value::Null),
-    )
-}
-
 fn view(method: &str, options: Value) -> Value {
     json!({"eye": [0.5, 1.7, 0.5], "forward": [1, 0, 0.3], "viewport": [320, 200],
            "method": method, "options": options})
@@ -140,7 +115,7 @@ async fn auto_answers_with_the_measured_best_at_the_requests_prices() {
         &test_context(),
     )
     .unwrap();
-    let (status, body) = call(&state, "GET", "/scenes", None).await;
+    let (status, body) = call(&state, "GET", "/scenes", NO_BODY).await;
     assert_eq!(status, StatusCode::OK);
     let scenes: Vec<SceneInfo> = serde_json::from_value(body).unwrap();
     let auto = &scenes[0].auto;
@@ -160,7 +135,7 @@ async fn auto_answers_with_the_measured_best_at_the_requests_prices() {
     assert_eq!(body["stats"]["method"], "frustum");
 
     state.rank_in_background(QUICK, None).join().unwrap();
-    let (_, body) = call(&state, "GET", "/scenes", None).await;
+    let (_, body) = call(&state, "GET", "/scenes", NO_BODY).await;
     let scenes: Vec<SceneInfo> = serde_json::from_value(body).unwrap();
     let auto = &scenes[0].auto;
     assert_eq!(auto.status, "measured");
@@ -287,7 +262,6 @@ async fn auto_answers_with_the_measured_best_at_the_requests_prices() {
 #[test]
 fn methods_no_client_asked_for_are_released_and_answer_the_same_when_asked() {
     use pvsd::cull::View;
-    use pvsd::cull::ranking::{Measured, Ranking};
     use pvsd::geom::Camera;
     let methods = SceneMethods::prepare_with(
         city_scene(40, 6, [0.0; 3]),
@@ -325,22 +299,11 @@ fn methods_no_client_asked_for_are_released_and_answer_the_same_when_asked() {
         &Registry::standard(),
         &test_context(),
     ));
-    let measured = |method: &str, us: f64| Measured {
-        method: method.into(),
-        mean_cull_us: us,
-        median_cull_us: us,
-        mean_pvs: 1.0,
-        mean_pvs_triangles: 1.0,
-    };
-    methods.set_ranking(Ranking {
-        walks: vec!["street".into()],
-        frames: 1,
-        viewport: [64, 64],
-        measured: names
+    methods.set_ranking(ranking_of(
+        names
             .iter()
-            .map(|&n| measured(n, if n == "horizon" { 1.0 } else { 100.0 }))
-            .collect(),
-    });
+            .map(|&n| (n, if n == "horizon" { 1.0 } else { 100.0 })),
+    ));
     assert_eq!(methods.auto_choice(methods.frame_cost()), "horizon");
     // Asked by a client before the release, kept.
     methods.get("supporting_planes").unwrap();
@@ -507,7 +470,6 @@ fn the_city_ranks_every_method_it_supports() {
 #[test]
 fn methods_measured_fast_run_inline() {
     use pvsd::cull::Execution;
-    use pvsd::cull::ranking::{Measured, Ranking};
     let methods = SceneMethods::prepare_with(
         city_scene(40, 6, [0.0; 3]),
         &Registry::standard(),
@@ -523,25 +485,36 @@ fn methods_measured_fast_run_inline() {
         ("inline", "blocking", "blocking"),
         "unmeasured, each where it says"
     );
-    let measured = |method: &str, us: f64| Measured {
-        method: method.into(),
-        mean_cull_us: us,
-        median_cull_us: us,
-        mean_pvs: 1.0,
-        mean_pvs_triangles: 1.0,
-    };
-    methods.set_ranking(Ranking {
-        walks: vec!["street".into()],
-        frames: 1,
-        viewport: [64, 64],
-        measured: vec![
-            measured("frustum", 5.0),
-            measured("horizon", pvsd::cull::INLINE_BELOW_US * 0.5),
-            measured("supporting_planes", pvsd::cull::INLINE_BELOW_US * 2.0),
-        ],
-    });
+    methods.set_ranking(ranking_of([
+        ("frustum", 5.0),
+        ("horizon", pvsd::cull::INLINE_BELOW_US * 0.5),
+        ("supporting_planes", pvsd::cull::INLINE_BELOW_US * 2.0),
+    ]));
     assert_eq!(
         (kind("frustum"), kind("horizon"), kind("supporting_planes")),
         ("inline", "inline", "blocking")
     );
+}
+
+/// A ranking measured as given: each method's mean cull time, one id and
+/// one triangle a frame.
+fn ranking_of<'a>(
+    cull_us: impl IntoIterator<Item = (&'a str, f64)>,
+) -> pvsd::cull::ranking::Ranking {
+    use pvsd::cull::ranking::{Measured, Ranking};
+    Ranking {
+        walks: vec!["street".into()],
+        frames: 1,
+        viewport: [64, 64],
+        measured: cull_us
+            .into_iter()
+            .map(|(method, us)| Measured {
+                method: method.into(),
+                mean_cull_us: us,
+                median_cull_us: us,
+                mean_pvs: 1.0,
+                mean_pvs_triangles: 1.0,
+            })
+            .collect(),
+    }
 }

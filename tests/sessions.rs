@@ -9,6 +9,7 @@ use std::time::Duration;
 
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
+use common::router::{NO_BODY, call};
 use common::server::{Held, Server, view_json, xpvs};
 use common::{city_scene, fetch};
 use futures_util::{SinkExt, StreamExt};
@@ -331,27 +332,6 @@ async fn bases_bad_frames_and_binary_stateless_answers() {
     assert!(res.json::<Value>().await.unwrap()["error"]["code"] == "unknown_scene");
 }
 
-async fn call(
-    state: &AppState,
-    method: &str,
-    uri: &str,
-    body: Option<Value>,
-) -> (StatusCode, Value) {
-    let req = Request::builder().method(method).uri(uri);
-    let req = match body {
-        Some(b) => req.body(Body::from(b.to_string())),
-        None => req.body(Body::empty()),
-    }
-    .unwrap();
-    let res = app(state.clone()).oneshot(req).await.unwrap();
-    let status = res.status();
-    let bytes = res.into_body().collect().await.unwrap().to_bytes();
-    (
-        status,
-        serde_json::from_slice(&bytes).unwrap_or(Value::Null),
-    )
-}
-
 fn limits(idle: Duration, max_sessions: u64, cache_bytes: u64) -> Limits {
     Limits {
         sessions: SessionLimits {
@@ -412,14 +392,14 @@ async fn unknown_and_deleted_sessions_are_404_expired_and_evicted_410() {
     assert_eq!(sid.len(), 32);
     assert!(sid.chars().all(|c| c.is_ascii_hexdigit()));
     assert_eq!(frame(sid.clone()).await.0, StatusCode::OK);
-    let (st, _) = call(&state, "DELETE", &format!("/sessions/{sid}"), None).await;
+    let (st, _) = call(&state, "DELETE", &format!("/sessions/{sid}"), NO_BODY).await;
     assert_eq!(st, StatusCode::NO_CONTENT);
     let (st, v) = frame(sid.clone()).await;
     assert_eq!(
         (st, code(&v)),
         (StatusCode::NOT_FOUND, "unknown_session".into())
     );
-    let (st, _) = call(&state, "DELETE", &format!("/sessions/{sid}"), None).await;
+    let (st, _) = call(&state, "DELETE", &format!("/sessions/{sid}"), NO_BODY).await;
     assert_eq!(st, StatusCode::NOT_FOUND);
 
     // Idle past the limit: 410, and the message says why.

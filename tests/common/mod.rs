@@ -2,6 +2,7 @@
 //! `../shared/scenes`, generated scenes, and random cameras.
 #![allow(dead_code)] // each test binary uses a different part of it
 
+pub mod router;
 pub mod server;
 
 use std::path::{Path, PathBuf};
