@@ -25,6 +25,9 @@
 //! bounds hold the boxes below it, so every mask in the horizon then was
 //! added at a depth not beyond the box's nearest, and a box hidden then
 //! never costs the queue a push and a pop (most of a street view's boxes).
+//! A queued box keeps the frame it was tested with and is tested again at
+//! its pop only if a mask was added since (the horizon only rises, and
+//! only through masks).
 //!
 //! Tilted and vertical views (§3.7): the horizon lives on the vertical
 //! plane whatever the pitch; only the window of screen x changes. When all
@@ -126,6 +129,9 @@ pub struct HorizonCulling {
     scene: Arc<Scene>,
     quadtree: QuadTree,
     prisms: Prisms,
+    /// Every object's box, by object index: the sweep reads thousands a
+    /// frame, and packed they stay in cache where the objects do not.
+    bounds: Vec<Aabb>,
 }
 
 impl HorizonCulling {
@@ -139,6 +145,7 @@ impl HorizonCulling {
     pub fn with_prisms(scene: Arc<Scene>, prisms: Prisms) -> HorizonCulling {
         HorizonCulling {
             quadtree: QuadTree::build(&scene),
+            bounds: scene.objects().iter().map(|o| o.bounds).collect(),
             scene,
             prisms,
         }
@@ -166,6 +173,20 @@ pub struct HorizonState {
     frame: u32,
     queue: BinaryHeap<Event>,
     masks: Vec<Mask>,
+    /// The cells and objects in the queue, each with the frame it was
+    /// tested with when pushed: the horizon may have risen by its pop (and
+    /// is tested again only if a mask was added since), the frame has not
+    /// changed.
+    pending: Vec<Pending>,
+}
+
+/// A cell or object in the queue and its frame (`None`: it cannot be
+/// hidden), found not hidden when pushed with `masks` masks in the horizon.
+#[derive(Clone, Copy, Debug)]
+struct Pending {
+    index: u32,
+    frame: Option<Frame>,
+    masks: u32,
 }
 
 /// A prism's rectangular mask (§3.4, Fig. 4c).
@@ -203,6 +224,19 @@ struct Event {
     /// A cell's planes still to test (its parent was inside the others);
     /// unused for the rest: objects are frustum-tested when pushed.
     planes: PlaneMask,
+}
+
+impl Event {
+    /// A cell's or an object's event: `index` is its [`Pending`] slot.
+    fn pending(depth: f64, kind: Kind, planes: PlaneMask, pending: &mut Vec<Pending>, p: Pending) -> Event {
+        pending.push(p);
+        Event {
+            depth,
+            kind,
+            index: (pending.len() - 1) as u32,
+            planes,
+        }
+    }
 }
 
 impl PartialEq for Event {
@@ -280,6 +314,12 @@ impl Sweep {
             x1,
             occludes,
         }
+    }
+
+    /// The bounding frame of a box when masks may hide it: `None` when the
+    /// eye is below the ground or the box cannot be hidden ([`Sweep::frame`]).
+    fn frame_if_occluding(&self, b: &Aabb) -> Option<Frame> {
+        if self.occludes { self.frame(b) } else { None }
     }
 
     /// The nearest depth of a box along `d`.
@@ -376,6 +416,7 @@ impl CullMethod for HorizonCulling {
             frame: 0,
             queue: BinaryHeap::new(),
             masks: Vec::new(),
+            pending: Vec::new(),
         })
     }
 
@@ -389,6 +430,7 @@ impl CullMethod for HorizonCulling {
             + state.stamps.capacity() * std::mem::size_of::<u32>()
             + state.queue.capacity() * std::mem::size_of::<Event>()
             + state.masks.capacity() * std::mem::size_of::<Mask>()
+            + state.pending.capacity() * std::mem::size_of::<Pending>()
     }
 
     /// Dynamic boxes join the sweep as events at their near depth, so only
@@ -419,14 +461,24 @@ impl CullMethod for HorizonCulling {
         }
         state.queue.clear();
         state.masks.clear();
+        state.pending.clear();
         let lod = state.areas || state.min_area > 0.0;
         let objects = self.scene.objects();
-        state.queue.push(Event {
-            depth: sweep.near_depth(&cells[0].bounds),
-            kind: Kind::Cell,
+        // The empty horizon hides nothing: the root is not hidden at 0 masks.
+        let root = Pending {
             index: 0,
-            planes: ALL_PLANES,
-        });
+            frame: sweep.frame_if_occluding(&cells[0].bounds),
+            masks: 0,
+        };
+        let mut masks_added = 0u32;
+        let event = Event::pending(
+            sweep.near_depth(&cells[0].bounds),
+            Kind::Cell,
+            ALL_PLANES,
+            &mut state.pending,
+            root,
+        );
+        state.queue.push(event);
         let ground = self.prisms.ground();
         for (i, b) in occludees.boxes().iter().enumerate() {
             if occludees.visible()[i] && sweep.occludes && f64::from(b.min.y) >= ground {
@@ -443,12 +495,16 @@ impl CullMethod for HorizonCulling {
                 Kind::Mask => {
                     let m = state.masks[ev.index as usize];
                     state.horizon.insert(m.x_lo, m.x_hi, m.height);
+                    masks_added += 1;
                 }
                 Kind::Cell => {
-                    let cell = &cells[ev.index as usize];
+                    let p = state.pending[ev.index as usize];
+                    let cell = &cells[p.index as usize];
                     counters.nodes_tested += 1;
                     let (side, planes) = view.frustum().classify(&cell.bounds, ev.planes);
-                    if side == Side::Outside || self.hidden(&sweep, &state.horizon, &cell.bounds) {
+                    if side == Side::Outside
+                        || (p.masks != masks_added && state.horizon.hides_frame(p.frame))
+                    {
                         continue;
                     }
                     for &o in self.quadtree.objects(cell) {
@@ -460,55 +516,77 @@ impl CullMethod for HorizonCulling {
                         }
                         state.stamps[o as usize] = state.frame;
                         counters.nodes_tested += 1;
-                        let b = &objects[o as usize].bounds;
-                        if view.frustum().classify_exact(b, planes).0 == Side::Outside
-                            || self.hidden(&sweep, &state.horizon, b)
-                        {
+                        let b = &self.bounds[o as usize];
+                        if view.frustum().classify_exact(b, planes).0 == Side::Outside {
                             continue;
                         }
-                        state.queue.push(Event {
-                            depth: sweep.near_depth(b),
-                            kind: Kind::Object,
+                        let frame = sweep.frame_if_occluding(b);
+                        if state.horizon.hides_frame(frame) {
+                            continue;
+                        }
+                        let p = Pending {
                             index: o,
-                            planes: 0,
-                        });
+                            frame,
+                            masks: masks_added,
+                        };
+                        let event = Event::pending(
+                            sweep.near_depth(b),
+                            Kind::Object,
+                            0,
+                            &mut state.pending,
+                            p,
+                        );
+                        state.queue.push(event);
                     }
                     for &c in cell.children.iter().filter(|&&c| c != 0) {
-                        if self.hidden(&sweep, &state.horizon, &cells[c as usize].bounds) {
+                        let b = &cells[c as usize].bounds;
+                        let frame = sweep.frame_if_occluding(b);
+                        if state.horizon.hides_frame(frame) {
                             continue;
                         }
-                        state.queue.push(Event {
-                            depth: sweep.near_depth(&cells[c as usize].bounds),
-                            kind: Kind::Cell,
+                        let p = Pending {
                             index: c,
+                            frame,
+                            masks: masks_added,
+                        };
+                        let event = Event::pending(
+                            sweep.near_depth(b),
+                            Kind::Cell,
                             planes,
-                        });
+                            &mut state.pending,
+                            p,
+                        );
+                        state.queue.push(event);
                     }
                 }
                 Kind::Dynamic => {
                     let i = ev.index as usize;
-                    if self.hidden(&sweep, &state.horizon, &occludees.boxes()[i]) {
+                    let frame = sweep.frame_if_occluding(&occludees.boxes()[i]);
+                    if state.horizon.hides_frame(frame) {
                         occludees.hide(i);
                     }
                 }
                 Kind::Object => {
-                    let o = &objects[ev.index as usize];
-                    let frame = sweep.occludes.then(|| sweep.frame(&o.bounds)).flatten();
-                    if let Some(f) = frame {
-                        if state.horizon.hides(f.x_lo, f.x_hi, f.y_hi) {
-                            continue;
-                        }
+                    let Pending {
+                        index,
+                        frame,
+                        masks,
+                    } = state.pending[ev.index as usize];
+                    let id = objects[index as usize].id;
+                    let bounds = &self.bounds[index as usize];
+                    if masks != masks_added && state.horizon.hides_frame(frame) {
+                        continue;
                     }
                     let area =
-                        lod.then(|| area_bound(view, &sweep, &state.horizon, &o.bounds, frame));
+                        lod.then(|| area_bound(view, &sweep, &state.horizon, bounds, frame));
                     match area {
                         Some(a) if a < state.min_area => {}
-                        Some(a) if state.areas => out.push_with_area(o.id, a),
-                        _ => out.push(o.id),
+                        Some(a) if state.areas => out.push_with_area(id, a),
+                        _ => out.push(id),
                     }
                     // Even a dropped object occludes: its prisms are real.
-                    if sweep.occludes && !contains(&o.bounds, sweep.eye) {
-                        for prism in self.prisms.of(o.id) {
+                    if sweep.occludes && !contains(bounds, sweep.eye) {
+                        for prism in self.prisms.of(id) {
                             if let Some((mask, far)) = sweep.mask(prism) {
                                 state.queue.push(Event {
                                     depth: far,
@@ -527,13 +605,11 @@ impl CullMethod for HorizonCulling {
     }
 }
 
-impl HorizonCulling {
-    /// Whether a box is wholly below the horizon.
-    fn hidden(&self, sweep: &Sweep, horizon: &Horizon, b: &Aabb) -> bool {
-        sweep.occludes
-            && sweep
-                .frame(b)
-                .is_some_and(|f| horizon.hides(f.x_lo, f.x_hi, f.y_hi))
+impl Horizon {
+    /// Whether a box of this frame is wholly below the horizon (`None`: a
+    /// box that cannot be hidden).
+    fn hides_frame(&self, frame: Option<Frame>) -> bool {
+        frame.is_some_and(|f| self.hides(f.x_lo, f.x_hi, f.y_hi))
     }
 }
 

@@ -157,17 +157,26 @@ impl Horizon {
             return false;
         };
         let top = grow(top);
-        (lo / BLOCK..=hi / BLOCK).all(|b| {
+        for b in lo / BLOCK..=hi / BLOCK {
             if self.lowest[b] > top {
-                return true;
+                continue;
             }
-            let (first, last) = (b * BLOCK, ((b + 1) * BLOCK).min(self.columns) - 1);
             // The block's lowest column is not above the top: a block
             // covered wholly is open; one covered in part, only if that
             // column is among those covered.
-            !(lo <= first && last <= hi)
-                && (first.max(lo)..=last.min(hi)).all(|c| self.height(c) > top)
-        })
+            let (first, last) = (b * BLOCK, ((b + 1) * BLOCK).min(self.columns) - 1);
+            if lo <= first && last <= hi {
+                return false;
+            }
+            let floor = self.floors[b];
+            if self.heights[first.max(lo)..=last.min(hi)]
+                .iter()
+                .any(|&h| h.max(floor) <= top)
+            {
+                return false;
+            }
+        }
+        true
     }
 
     /// The part of a frame `[x_lo, x_hi]` (top `top`) above the horizon
