@@ -496,6 +496,58 @@ fn methods_measured_fast_run_inline() {
     );
 }
 
+/// A released method whose build fails the second time answers a clear
+/// 500 naming the method and why, and the server goes on answering.
+#[tokio::test]
+async fn a_method_that_cannot_be_built_again_is_a_clear_error() {
+    use pvsd::cull::MethodEntry;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    static BUILT: AtomicBool = AtomicBool::new(false);
+    let horizon = pvsd::cull::horizon::ENTRY;
+    let registry = Registry::standard().with(MethodEntry {
+        build: |p| {
+            if BUILT.swap(true, Ordering::SeqCst) {
+                Err("the prisms are gone".into())
+            } else {
+                (pvsd::cull::horizon::ENTRY.build)(p)
+            }
+        },
+        ..horizon
+    });
+    let state = AppState::with_methods(
+        vec![city_scene(40, 6, [0.0; 3])],
+        Limits::default(),
+        &registry,
+        &test_context(),
+    )
+    .unwrap();
+    let city = state.scenes().next().unwrap().clone();
+    city.set_ranking(ranking_of([("frustum", 1.0), ("horizon", 100.0)]));
+    assert!(city.release_unasked().contains(&"horizon"));
+    let (status, body) = call(
+        &state,
+        "POST",
+        "/scenes/city/visible",
+        Some(view("horizon", json!({}))),
+    )
+    .await;
+    assert_eq!(status, StatusCode::INTERNAL_SERVER_ERROR, "{body}");
+    assert_eq!(body["error"]["code"], "internal", "{body}");
+    let message = body["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("'horizon'") && message.contains("the prisms are gone"),
+        "{message}"
+    );
+    let (status, body) = call(
+        &state,
+        "POST",
+        "/scenes/city/visible",
+        Some(view("frustum", json!({}))),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{body}");
+}
+
 /// A ranking measured as given: each method's mean cull time, one id and
 /// one triangle a frame.
 fn ranking_of<'a>(
