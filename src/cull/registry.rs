@@ -441,7 +441,7 @@ impl SceneMethods {
             .iter()
             .map(|s| s.entry.name)
             .find(|&name| Some(name) == best)
-            .unwrap_or(self.fallback.name())
+            .unwrap_or(AUTO_CHOICE)
     }
 
     /// The method a spec names with the options it gets: `auto` reads its
