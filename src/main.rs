@@ -364,8 +364,17 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
-        tracing::info!("listening on http://{}", listener.local_addr()?);
-        pvsd::server::run(listener, state, shutdown_signal()).await?;
+        match (&config.tls_cert, &config.tls_key) {
+            (Some(cert), Some(key)) => {
+                let tls = pvsd::server::tls::acceptor(cert, key)?;
+                tracing::info!("listening on https://{}", listener.local_addr()?);
+                pvsd::server::run_tls(listener, state, tls, shutdown_signal()).await?;
+            }
+            _ => {
+                tracing::info!("listening on http://{}", listener.local_addr()?);
+                pvsd::server::run(listener, state, shutdown_signal()).await?;
+            }
+        }
         Ok(())
     })
 }

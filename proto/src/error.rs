@@ -85,6 +85,16 @@ error_codes! {
     StaticObject = "static_object",
     /// 400: the transform has a NaN, an infinity, or a zero scale.
     InvalidTransform = "invalid_transform",
+    /// 413: the JSON body nests deeper, or has a longer array, than the server's limits.
+    BodyTooComplex = "body_too_complex",
+    /// 408: the client took longer than the server's body timeout to send the body.
+    BodyTimeout = "body_timeout",
+    /// 429: the client sent more requests (or WebSocket messages) than its rate allows; try again after `Retry-After` seconds.
+    RateLimited = "rate_limited",
+    /// 503: the server has as many connections open as it allows; try again after `Retry-After` seconds.
+    Overloaded = "overloaded",
+    /// 413: a WebSocket message over the body limit (the close frame's reason).
+    MessageTooLarge = "message_too_large",
 }
 
 impl std::fmt::Display for ErrorCode {

@@ -14,6 +14,19 @@
 //! rank_methods = true            # measure each scene's methods for `auto`
 //! cost_per_triangle_ns = 2.0     # the prices `auto` ranks with
 //! cost_per_byte_ns = 0.0
+//! max_connections = 10000        # past it, 503 overloaded
+//! header_timeout_ms = 10000      # to send a request's head; idle keep-alive
+//! body_timeout_ms = 10000        # to send a request's body (408 after)
+//! shutdown_grace_s = 10          # SIGTERM: time for requests in flight
+//! json_max_depth = 16            # nesting of a JSON body (413 past it)
+//! json_max_array = 1024          # items of one JSON array (413 past it)
+//! rate_limit_per_s = 200.0       # requests a second per client IP (429
+//! rate_limit_burst = 400         #   past it); no key, no limit
+//! websocket_messages_per_s = 1000.0  # per WebSocket; past it, refused
+//! websocket_burst = 200
+//! admin_token = "…"              # bearer token of routes that change scenes
+//! tls_cert = "cert.pem"          # both set: HTTPS (rustls), else HTTP
+//! tls_key = "key.pem"
 //! ```
 //! Every key is optional; flags given on the command line win over the file.
 
@@ -23,7 +36,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::{Limits, SessionLimits};
+use super::{ConnectionLimits, JsonLimits, Limits, Rate, SessionLimits};
 use crate::cull::ranking::{COST_PER_BYTE_NS, COST_PER_TRIANGLE_NS, FrameCost};
 use crate::cull::{MethodContext, Registry};
 use crate::scene::BakeCache;
@@ -65,6 +78,30 @@ pub struct ServeConfig {
     pub cost_per_triangle_ns: Option<f64>,
     /// Modelled cost of sending a byte of geometry, ns, for `auto` (default 0).
     pub cost_per_byte_ns: Option<f64>,
+    /// Most open connections.
+    pub max_connections: Option<usize>,
+    /// Longest a client may take to send a request's head, ms.
+    pub header_timeout_ms: Option<u64>,
+    /// Longest a client may take to send a request's body, ms.
+    pub body_timeout_ms: Option<u64>,
+    /// How long shutdown waits for requests in flight, seconds.
+    pub shutdown_grace_s: Option<u64>,
+    /// Most nested arrays and objects in a JSON body.
+    pub json_max_depth: Option<usize>,
+    /// Most items in one array of a JSON body.
+    pub json_max_array: Option<usize>,
+    /// Requests a second each client IP may make (off when absent).
+    pub rate_limit_per_s: Option<f64>,
+    /// Requests a client IP may make at once (default: a second's worth).
+    pub rate_limit_burst: Option<u32>,
+    /// Messages a second each WebSocket may send.
+    pub websocket_messages_per_s: Option<f64>,
+    /// Messages a WebSocket may send at once.
+    pub websocket_burst: Option<u32>,
+    /// PEM certificate chain; with `tls_key`, the server speaks HTTPS.
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key of `tls_cert`.
+    pub tls_key: Option<PathBuf>,
 }
 
 /// A config file that could not be used.
@@ -85,9 +122,20 @@ impl ServeConfig {
             problem,
         };
         let text = std::fs::read_to_string(path).map_err(|e| fail(format!("cannot read: {e}")))?;
-        let mut cfg: ServeConfig = toml::from_str(&text).map_err(|e| fail(e.to_string()))?;
-        let dir = path.parent().unwrap_or(Path::new("."));
-        for s in cfg.scenes.iter_mut().chain(&mut cfg.bake_dir) {
+        ServeConfig::from_toml(&text, path.parent().unwrap_or(Path::new("."))).map_err(fail)
+    }
+
+    /// Reads and checks a config file's text; relative paths are taken
+    /// relative to `dir`. The error says what is wrong, without the file.
+    pub fn from_toml(text: &str, dir: &Path) -> Result<ServeConfig, String> {
+        let mut cfg: ServeConfig = toml::from_str(text).map_err(|e| e.to_string())?;
+        for s in cfg
+            .scenes
+            .iter_mut()
+            .chain(&mut cfg.bake_dir)
+            .chain(&mut cfg.tls_cert)
+            .chain(&mut cfg.tls_key)
+        {
             if s.is_relative() {
                 *s = dir.join(&*s);
             }
@@ -95,31 +143,27 @@ impl ServeConfig {
         let registry = Registry::standard();
         if let Some(m) = cfg.disabled_methods.iter().find(|m| !registry.knows(m)) {
             let known: Vec<&str> = registry.entries().iter().map(|e| e.name).collect();
-            return Err(fail(format!(
+            return Err(format!(
                 "disabled_methods: unknown method '{m}'; known methods: {}",
                 known.join(", ")
-            )));
+            ));
         }
         if cfg.disabled_methods.iter().any(|m| m == "frustum") {
-            return Err(fail(
+            return Err(
                 "disabled_methods: frustum cannot be disabled: every other method falls back to it"
                     .into(),
-            ));
+            );
         }
         for (range, value) in [
             (&COST_PER_TRIANGLE_NS, cfg.cost_per_triangle_ns),
             (&COST_PER_BYTE_NS, cfg.cost_per_byte_ns),
         ] {
             if let Some(v) = value.filter(|v| !(range.min..=range.max).contains(v)) {
-                return Err(fail(format!(
-                    "{}: {v} is not {}",
-                    range.key,
-                    range.expected()
-                )));
+                return Err(format!("{}: {v} is not {}", range.key, range.expected()));
             }
         }
         if cfg.body_limit_bytes == Some(0) {
-            return Err(fail("body_limit_bytes must be > 0".into()));
+            return Err("body_limit_bytes must be > 0".into());
         }
         for (key, value) in [
             ("request_timeout_ms", cfg.request_timeout_ms),
@@ -127,10 +171,31 @@ impl ServeConfig {
             ("max_sessions", cfg.max_sessions),
             ("session_cache_bytes", cfg.session_cache_bytes),
             ("max_walkthroughs", cfg.max_walkthroughs),
+            ("max_connections", cfg.max_connections.map(|v| v as u64)),
+            ("header_timeout_ms", cfg.header_timeout_ms),
+            ("body_timeout_ms", cfg.body_timeout_ms),
+            ("json_max_depth", cfg.json_max_depth.map(|v| v as u64)),
+            ("json_max_array", cfg.json_max_array.map(|v| v as u64)),
+            ("rate_limit_burst", cfg.rate_limit_burst.map(u64::from)),
+            ("websocket_burst", cfg.websocket_burst.map(u64::from)),
         ] {
             if value == Some(0) {
-                return Err(fail(format!("{key} must be > 0")));
+                return Err(format!("{key} must be > 0"));
             }
+        }
+        for (key, value) in [
+            ("rate_limit_per_s", cfg.rate_limit_per_s),
+            ("websocket_messages_per_s", cfg.websocket_messages_per_s),
+        ] {
+            if let Some(v) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(format!("{key}: {v} is not a rate > 0"));
+            }
+        }
+        if cfg.rate_limit_burst.is_some() && cfg.rate_limit_per_s.is_none() {
+            return Err("rate_limit_burst: set rate_limit_per_s too (no rate, no limit)".into());
+        }
+        if cfg.tls_cert.is_some() != cfg.tls_key.is_some() {
+            return Err("tls_cert and tls_key: give both (HTTPS) or neither (HTTP)".into());
         }
         Ok(cfg)
     }
@@ -156,6 +221,8 @@ impl ServeConfig {
     pub fn limits(&self) -> Limits {
         let d = Limits::default();
         let s = d.sessions;
+        let c = d.connections;
+        let ms = Duration::from_millis;
         Limits {
             body_bytes: self.body_limit_bytes.unwrap_or(d.body_bytes),
             request_timeout: self
@@ -166,6 +233,30 @@ impl ServeConfig {
                 max_sessions: self.max_sessions.unwrap_or(s.max_sessions),
                 cache_bytes: self.session_cache_bytes.unwrap_or(s.cache_bytes),
                 max_walkthroughs: self.max_walkthroughs.unwrap_or(s.max_walkthroughs),
+            },
+            connections: ConnectionLimits {
+                max_connections: self.max_connections.unwrap_or(c.max_connections),
+                header_timeout: self.header_timeout_ms.map_or(c.header_timeout, ms),
+                body_timeout: self.body_timeout_ms.map_or(c.body_timeout, ms),
+                shutdown_grace: self
+                    .shutdown_grace_s
+                    .map_or(c.shutdown_grace, Duration::from_secs),
+            },
+            json: JsonLimits {
+                max_depth: self.json_max_depth.unwrap_or(d.json.max_depth),
+                max_array: self.json_max_array.unwrap_or(d.json.max_array),
+            },
+            client_rate: self.rate_limit_per_s.map(|per_s| Rate {
+                per_s,
+                burst: self
+                    .rate_limit_burst
+                    .unwrap_or((per_s.ceil() as u32).max(1)),
+            }),
+            websocket_rate: Rate {
+                per_s: self
+                    .websocket_messages_per_s
+                    .unwrap_or(d.websocket_rate.per_s),
+                burst: self.websocket_burst.unwrap_or(d.websocket_rate.burst),
             },
         }
     }

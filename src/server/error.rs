@@ -103,6 +103,31 @@ pub enum ApiError {
     /// The object was not moved.
     #[error(transparent)]
     Move(#[from] MoveError),
+    /// The JSON body is deeper or wider than the limits.
+    #[error("{0}")]
+    BodyTooComplex(String),
+    /// The body came slower than the body timeout allows.
+    #[error("the request body did not arrive within {ms} ms")]
+    BodyTimeout {
+        /// The timeout in force.
+        ms: u64,
+    },
+    /// The client is over its request (or message) rate.
+    #[error(
+        "too many requests from this client: the limit is {per_s} a second; retry after {retry_after_s} s"
+    )]
+    RateLimited {
+        /// The rate in force.
+        per_s: f64,
+        /// Seconds to wait (the `Retry-After` header).
+        retry_after_s: u64,
+    },
+    /// The server has as many connections as it allows.
+    #[error("the server has {max} connections open, its limit; retry after 1 s")]
+    Overloaded {
+        /// The limit in force.
+        max: usize,
+    },
     /// A bug or an unexpected failure; details go to the log only.
     #[error("internal error")]
     Internal(String),
@@ -190,6 +215,12 @@ impl ApiError {
                 MoveError::Static(_) => (StatusCode::CONFLICT, ErrorCode::StaticObject),
                 MoveError::Transform(_) => (StatusCode::BAD_REQUEST, ErrorCode::InvalidTransform),
             },
+            ApiError::BodyTooComplex(_) => {
+                (StatusCode::PAYLOAD_TOO_LARGE, ErrorCode::BodyTooComplex)
+            }
+            ApiError::BodyTimeout { .. } => (StatusCode::REQUEST_TIMEOUT, ErrorCode::BodyTimeout),
+            ApiError::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, ErrorCode::RateLimited),
+            ApiError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::Overloaded),
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Internal),
         }
     }
@@ -212,12 +243,27 @@ impl ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let mut response = (self.status_and_code().0, Json(self.body())).into_response();
+        let (status, code) = self.status_and_error_code();
+        let mut response = (status, Json(self.body())).into_response();
+        // For the metrics layer, which counts refusals by code.
+        response.extensions_mut().insert(code);
         match self {
-            ApiError::Busy { retry_after_s, .. } => {
+            ApiError::Busy { retry_after_s, .. } | ApiError::RateLimited { retry_after_s, .. } => {
                 response
                     .headers_mut()
                     .insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+            }
+            ApiError::Overloaded { .. } => {
+                let headers = response.headers_mut();
+                headers.insert(header::RETRY_AFTER, HeaderValue::from(1));
+                headers.insert(header::CONNECTION, HeaderValue::from_static("close"));
+            }
+            ApiError::BodyTimeout { .. } => {
+                // The rest of the body is unread: the connection cannot
+                // carry another request.
+                response
+                    .headers_mut()
+                    .insert(header::CONNECTION, HeaderValue::from_static("close"));
             }
             ApiError::Unauthorized(_) => {
                 response.headers_mut().insert(

@@ -1,9 +1,13 @@
-//! Request bodies: [`RawBody`] reads the bytes (within the body limit) and
+//! Request bodies: [`RawBody`] reads the bytes (within the body limit and
+//! the body timeout) and
 //! [`parse`] turns them into a type; both fail with [`ApiError`]s that say
 //! where. They are two steps so a handler can check the path (is there such
 //! a scene?) before it judges the body.
 //!
-//! Parsing differs from `axum::Json` in three ways, each for a client's sake:
+//! Parsing differs from `axum::Json` in four ways, each for a client's sake
+//! or the server's:
+//! - nesting and array lengths are bounded ([`JsonLimits`]) before the
+//!   parser builds anything;
 //! - errors name the field (`eye: invalid length 2, expected an array of
 //!   length 3`) through `serde_path_to_error`;
 //! - the bare tokens `NaN`, `Infinity` and `-Infinity`, which JavaScript-style
@@ -18,35 +22,40 @@ use axum::http::StatusCode;
 use serde::de::DeserializeOwned;
 
 use super::error::ApiError;
+use super::state::{AppState, JsonLimits};
 
-/// A request body, read whole within the body limit.
+/// A request body, read whole within the body limit and the body timeout.
 #[derive(Debug)]
 pub struct RawBody(pub Bytes);
 
-impl<S: Send + Sync> FromRequest<S> for RawBody {
+impl FromRequest<AppState> for RawBody {
     type Rejection = ApiError;
 
-    async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
-        let limit = req.extensions().get::<BodyLimit>().map_or(0, |l| l.0);
-        let bytes = Bytes::from_request(req, state).await.map_err(|r| {
-            if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
-                ApiError::BodyTooLarge { limit }
-            } else {
-                ApiError::MalformedJson(format!("cannot read the body: {r}"))
-            }
-        })?;
+    async fn from_request(req: Request, state: &AppState) -> Result<Self, Self::Rejection> {
+        let limits = state.limits();
+        let timeout = limits.connections.body_timeout;
+        let read = Bytes::from_request(req, state);
+        let bytes = tokio::time::timeout(timeout, read)
+            .await
+            .map_err(|_| ApiError::BodyTimeout {
+                ms: timeout.as_millis() as u64,
+            })?
+            .map_err(|r| {
+                if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                    ApiError::BodyTooLarge {
+                        limit: limits.body_bytes,
+                    }
+                } else {
+                    ApiError::MalformedJson(format!("cannot read the body: {r}"))
+                }
+            })?;
         Ok(RawBody(bytes))
     }
 }
 
-/// The body limit in force, put in request extensions by the router so the
-/// error can quote it.
-#[derive(Clone, Copy, Debug)]
-pub struct BodyLimit(pub usize);
-
-/// Parses `bytes` as `T`, naming the failing path.
-pub fn parse<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ApiError> {
-    let relaxed = relax_non_finite(bytes);
+/// Parses `bytes` as `T` within `limits`, naming the failing path.
+pub fn parse<T: DeserializeOwned>(bytes: &[u8], limits: JsonLimits) -> Result<T, ApiError> {
+    let relaxed = scan(bytes, limits)?;
     let input = relaxed.as_deref().unwrap_or(bytes);
     let de = &mut serde_json::Deserializer::from_slice(input);
     serde_path_to_error::deserialize(de).map_err(|e| {
@@ -60,13 +69,19 @@ pub fn parse<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ApiError> {
     })
 }
 
-/// Rewrites bare `NaN`, `Infinity` and `-Infinity` outside strings into the
-/// strings `"NaN"`, `"Infinity"`, `"-Infinity"`, which [`pvsd_proto::json::Number`]
-/// reads. `None` when there is none (the common case: no copy).
-fn relax_non_finite(bytes: &[u8]) -> Option<Vec<u8>> {
+/// One pass over the body before it is parsed: refuses nesting deeper than
+/// `limits.max_depth` and arrays longer than `limits.max_array` (the
+/// parser would build them before any field could be refused), and
+/// rewrites bare `NaN`, `Infinity` and `-Infinity` outside strings into the
+/// strings `"NaN"`, `"Infinity"`, `"-Infinity"`, which
+/// [`pvsd_proto::json::Number`] reads. `None` when nothing is rewritten
+/// (the common case: no copy). Malformed JSON passes; the parser names it.
+fn scan(bytes: &[u8], limits: JsonLimits) -> Result<Option<Vec<u8>>, ApiError> {
     const TOKENS: [&[u8]; 3] = [b"-Infinity", b"Infinity", b"NaN"];
     let mut out: Option<Vec<u8>> = None;
     let (mut in_string, mut escaped) = (false, false);
+    // The open arrays and objects: for an array, its items so far.
+    let mut open: Vec<Option<usize>> = Vec::new();
     let mut i = 0;
     while i < bytes.len() {
         let b = bytes[i];
@@ -78,22 +93,51 @@ fn relax_non_finite(bytes: &[u8]) -> Option<Vec<u8>> {
             } else if b == b'"' {
                 in_string = false;
             }
-        } else if b == b'"' {
-            in_string = true;
-        } else if let Some(t) = TOKENS.iter().find(|t| bytes[i..].starts_with(t)) {
-            let o = out.get_or_insert_with(|| bytes[..i].to_vec());
-            o.push(b'"');
-            o.extend_from_slice(t);
-            o.push(b'"');
-            i += t.len();
-            continue;
+        } else {
+            match b {
+                b'"' => in_string = true,
+                b'[' | b'{' => {
+                    if open.len() == limits.max_depth {
+                        return Err(ApiError::BodyTooComplex(format!(
+                            "the body nests arrays and objects deeper than {} levels",
+                            limits.max_depth
+                        )));
+                    }
+                    open.push((b == b'[').then_some(0));
+                }
+                b']' | b'}' => {
+                    open.pop();
+                }
+                b',' => {
+                    if let Some(Some(items)) = open.last_mut() {
+                        *items += 1;
+                        // n commas separate n + 1 items.
+                        if *items >= limits.max_array {
+                            return Err(ApiError::BodyTooComplex(format!(
+                                "an array in the body has more than {} items",
+                                limits.max_array
+                            )));
+                        }
+                    }
+                }
+                _ => {
+                    if let Some(t) = TOKENS.iter().find(|t| bytes[i..].starts_with(t)) {
+                        let o = out.get_or_insert_with(|| bytes[..i].to_vec());
+                        o.push(b'"');
+                        o.extend_from_slice(t);
+                        o.push(b'"');
+                        i += t.len();
+                        continue;
+                    }
+                }
+            }
         }
         if let Some(o) = out.as_mut() {
             o.push(b);
         }
         i += 1;
     }
-    out
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -102,12 +146,34 @@ mod tests {
 
     #[test]
     fn relaxes_only_outside_strings() {
-        let got =
-            relax_non_finite(br#"{"a":[NaN,-Infinity,Infinity],"s":"NaN \" Infinity"}"#).unwrap();
+        let limits = JsonLimits::default();
+        let got = scan(
+            br#"{"a":[NaN,-Infinity,Infinity],"s":"NaN \" Infinity"}"#,
+            limits,
+        )
+        .unwrap()
+        .unwrap();
         assert_eq!(
             std::str::from_utf8(&got).unwrap(),
             r#"{"a":["NaN","-Infinity","Infinity"],"s":"NaN \" Infinity"}"#
         );
-        assert!(relax_non_finite(br#"{"a":[1,2],"s":"NaN"}"#).is_none());
+        assert!(scan(br#"{"a":[1,2],"s":"NaN"}"#, limits).unwrap().is_none());
+    }
+
+    #[test]
+    fn refuses_deep_nesting_and_long_arrays_but_not_brackets_in_strings() {
+        let limits = JsonLimits {
+            max_depth: 3,
+            max_array: 4,
+        };
+        assert!(scan(br#"{"a":[[1]]}"#, limits).is_ok());
+        let deep = scan(br#"{"a":[[[1]]]}"#, limits).unwrap_err();
+        assert!(deep.to_string().contains("deeper than 3 levels"), "{deep}");
+        assert!(scan(br#"{"a":[1,2,3,4],"b":[1,2,3,4]}"#, limits).is_ok());
+        let long = scan(br#"{"a":[1,2,3,4,5]}"#, limits).unwrap_err();
+        assert!(long.to_string().contains("more than 4 items"), "{long}");
+        // Commas of objects and of strings are not items.
+        assert!(scan(br#"{"a":1,"b":2,"c":3,"d":4,"e":"[[[[,,,,,"}"#, limits).is_ok());
+        assert_eq!(long.status_and_code().1, "body_too_complex");
     }
 }

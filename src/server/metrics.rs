@@ -14,6 +14,7 @@ use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
 use prometheus_client::registry::Registry;
+use pvsd_proto::error::ErrorCode;
 
 use super::state::AppState;
 use crate::cull::CullStats;
@@ -34,6 +35,60 @@ struct RouteLatencyLabels {
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct EvictionLabels {
     cause: &'static str,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct RefusalLabels {
+    reason: &'static str,
+}
+
+/// Why the server refused a client: each is a label of
+/// `pvsd_refused_total`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refusal {
+    /// A connection over `max_connections` (503 `overloaded`).
+    Connections,
+    /// A request head (or TLS handshake) slower than `header_timeout_ms`,
+    /// or a keep-alive connection idle that long.
+    HeaderTimeout,
+    /// A body slower than `body_timeout_ms` (408).
+    BodyTimeout,
+    /// A body over `body_limit_bytes` (413).
+    BodySize,
+    /// A body deeper or wider than the JSON limits (413).
+    JsonLimits,
+    /// A client over its request rate (429).
+    ClientRate,
+    /// A WebSocket over its message rate.
+    WebSocketRate,
+    /// A WebSocket message over the body limit.
+    WebSocketSize,
+}
+
+impl Refusal {
+    /// The refusal an HTTP error answer stands for, if it is one.
+    fn of(code: ErrorCode) -> Option<Refusal> {
+        Some(match code {
+            ErrorCode::BodyTooLarge => Refusal::BodySize,
+            ErrorCode::BodyTooComplex => Refusal::JsonLimits,
+            ErrorCode::BodyTimeout => Refusal::BodyTimeout,
+            ErrorCode::RateLimited => Refusal::ClientRate,
+            _ => return None,
+        })
+    }
+
+    fn label(self) -> &'static str {
+        match self {
+            Refusal::Connections => "connections",
+            Refusal::HeaderTimeout => "header_timeout",
+            Refusal::BodyTimeout => "body_timeout",
+            Refusal::BodySize => "body_size",
+            Refusal::JsonLimits => "json_limits",
+            Refusal::ClientRate => "client_rate",
+            Refusal::WebSocketRate => "websocket_rate",
+            Refusal::WebSocketSize => "websocket_size",
+        }
+    }
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
@@ -67,6 +122,8 @@ pub struct Metrics {
     walkthroughs: Gauge,
     /// Open WebSocket connections.
     websockets: Gauge,
+    /// Clients refused by a limit, by reason.
+    refused: Family<RefusalLabels, Counter>,
 }
 
 fn latency_histogram() -> Histogram {
@@ -101,6 +158,12 @@ impl Metrics {
         let evictions = Family::<EvictionLabels, Counter>::default();
         let walkthroughs = Gauge::default();
         let websockets = Gauge::default();
+        let refused = Family::<RefusalLabels, Counter>::default();
+        registry.register(
+            "refused",
+            "Requests, connections and WebSocket messages refused by a limit, by reason",
+            refused.clone(),
+        );
         registry.register("sessions", "Live sessions", sessions.clone());
         registry.register(
             "session_cache_bytes",
@@ -153,6 +216,7 @@ impl Metrics {
             evictions,
             walkthroughs,
             websockets,
+            refused,
         }
     }
 
@@ -176,6 +240,15 @@ impl Metrics {
     /// A WebSocket opened (`+1`) or closed (`-1`).
     pub fn websocket(&self, delta: i64) {
         self.websockets.inc_by(delta);
+    }
+
+    /// Counts one refusal.
+    pub fn refused(&self, why: Refusal) {
+        self.refused
+            .get_or_create(&RefusalLabels {
+                reason: why.label(),
+            })
+            .inc();
     }
 
     /// Records one cull: its time and size under the method that answered
@@ -234,6 +307,13 @@ pub async fn track(State(state): State<AppState>, req: Request, next: Next) -> R
     let start = Instant::now();
     let response = next.run(req).await;
     let m = state.metrics();
+    if let Some(why) = response
+        .extensions()
+        .get::<ErrorCode>()
+        .and_then(|&c| Refusal::of(c))
+    {
+        m.refused(why);
+    }
     m.latency
         .get_or_create(&RouteLatencyLabels {
             route: route.clone(),

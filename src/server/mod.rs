@@ -14,10 +14,13 @@
 pub mod config;
 mod error;
 mod extract;
+mod limit;
+mod listener;
 mod metrics;
 mod routes;
 pub mod session;
 mod state;
+pub mod tls;
 pub mod walkthrough;
 pub mod wire;
 mod ws;
@@ -36,9 +39,10 @@ use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::trace::TraceLayer;
 
 pub use error::ApiError;
-pub use extract::BodyLimit;
+pub use extract::parse;
+pub use listener::{ConnectionLimits, ConnectionSlot};
 pub use metrics::Metrics;
-pub use state::{AppState, DuplicateScene, Limits, SessionLimits};
+pub use state::{AppState, DuplicateScene, JsonLimits, Lifecycle, Limits, Rate, SessionLimits};
 
 /// A router that remembers what it routes, so the OpenAPI document can be
 /// checked against the routes themselves.
@@ -103,7 +107,6 @@ pub fn app(state: AppState) -> Router {
         .fallback(routes::no_route)
         .method_not_allowed_fallback(routes::method_not_allowed)
         .layer(DefaultBodyLimit::max(limits.body_bytes))
-        .layer(axum::Extension(BodyLimit(limits.body_bytes)))
         .layer(
             ServiceBuilder::new()
                 .layer(HandleErrorLayer::new(move |err| {
@@ -116,6 +119,10 @@ pub fn app(state: AppState) -> Router {
         .layer(CatchPanicLayer::custom(routes::panicked))
         .layer(axum::middleware::from_fn_with_state(
             state.clone(),
+            limit::limit_clients,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.clone(),
             metrics::track,
         ))
         .layer(TraceLayer::new_for_http())
@@ -123,15 +130,23 @@ pub fn app(state: AppState) -> Router {
 }
 
 /// Serves `app(state)` on `listener` until `shutdown` resolves, then lets
-/// requests in flight finish.
+/// requests in flight finish within the grace period (`listener`).
 pub async fn run(
     listener: TcpListener,
     state: AppState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    axum::serve(listener, app(state))
-        .with_graceful_shutdown(shutdown)
-        .await
+    listener::serve(listener, state, None, shutdown).await
+}
+
+/// [`run`], speaking TLS with `tls` (see [`tls::acceptor`]).
+pub async fn run_tls(
+    listener: TcpListener,
+    state: AppState,
+    tls: tokio_rustls::TlsAcceptor,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    listener::serve(listener, state, Some(tls), shutdown).await
 }
 
 /// Resolves on SIGINT (Ctrl+C) or SIGTERM.

@@ -119,7 +119,7 @@ pub async fn move_object(
     let oid: u32 = oid
         .parse()
         .map_err(|_| ApiError::Move(MoveError::Unknown(oid.clone())))?;
-    let req: MoveRequest = parse(&body)?;
+    let req: MoveRequest = parse(&body, state.limits().json)?;
     let to = req.transform()?;
     scene
         .motion()
@@ -164,7 +164,7 @@ pub async fn visible(
     RawBody(body): RawBody,
 ) -> Result<Response, ApiError> {
     let methods = state.scene(&id)?;
-    let req: ViewRequest = parse(&body)?;
+    let req: ViewRequest = parse(&body, state.limits().json)?;
     req.check_stateless()?;
     let spec = req.method_spec()?;
     let (method, cache) = prepare_client(methods, &spec).await?;
@@ -206,7 +206,7 @@ fn scene_and_spec(
     state: &AppState,
     body: &[u8],
 ) -> Result<(Arc<SceneMethods>, MethodSpec), ApiError> {
-    let req: SessionRequest = parse(body)?;
+    let req: SessionRequest = parse(body, state.limits().json)?;
     let methods = state.scene(&req.scene)?.clone();
     let spec = method_spec(req.method.as_deref(), &req.options)?;
     Ok((methods, spec))
@@ -240,7 +240,7 @@ pub async fn answer_frame(
     body: &[u8],
 ) -> Result<FrameResponse, ApiError> {
     let session = state.sessions().get(sid)?;
-    let req: ViewRequest = parse(body)?;
+    let req: ViewRequest = parse(body, state.limits().json)?;
     req.check_frame()?;
     let view = View::new(req.camera(), session.scene.scene())?;
     let answered = session.frame(view, req.base).await?;

@@ -8,7 +8,12 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
 
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
 use super::error::ApiError;
+use super::limit::ClientRate;
+use super::listener::ConnectionLimits;
 use super::metrics::Metrics;
 use super::session::Sessions;
 use super::walkthrough::Walkthroughs;
@@ -18,7 +23,7 @@ use crate::scene::BakeCache;
 use crate::scene::Scene;
 
 /// Limits applied to every request.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Limits {
     /// Largest accepted request body, bytes.
     pub body_bytes: usize,
@@ -26,6 +31,43 @@ pub struct Limits {
     pub request_timeout: Duration,
     /// Caps on sessions and walkthroughs.
     pub sessions: SessionLimits,
+    /// Caps and timeouts of connections.
+    pub connections: ConnectionLimits,
+    /// How deep and how long a JSON body may be.
+    pub json: JsonLimits,
+    /// Requests a second each client (IP address) may make; none: no limit.
+    pub client_rate: Option<Rate>,
+    /// Messages a second each WebSocket may send.
+    pub websocket_rate: Rate,
+}
+
+/// How deep and how wide a JSON body may be: no body the routes take
+/// comes near these, and they bound what a body within the byte limit can
+/// make the parser do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct JsonLimits {
+    /// Most nested arrays and objects.
+    pub max_depth: usize,
+    /// Most items in one array.
+    pub max_array: usize,
+}
+
+impl Default for JsonLimits {
+    fn default() -> Self {
+        JsonLimits {
+            max_depth: 16,
+            max_array: 1024,
+        }
+    }
+}
+
+/// A token bucket: `per_s` a second on average, `burst` at once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Rate {
+    /// Sustained rate, a second.
+    pub per_s: f64,
+    /// Most at once after a pause.
+    pub burst: u32,
 }
 
 /// How long sessions live and how many the server keeps.
@@ -59,10 +101,19 @@ impl Default for Limits {
     fn default() -> Self {
         // A view is ~300 bytes; 64 KiB leaves room for options without
         // letting a client make the server buffer megabytes.
+        // A walker asks 30–120 frames a second; 1,000 a second with bursts
+        // of 200 leaves room for a client catching up after a stall.
         Limits {
             body_bytes: 64 * 1024,
             request_timeout: Duration::from_secs(10),
             sessions: SessionLimits::default(),
+            connections: ConnectionLimits::default(),
+            json: JsonLimits::default(),
+            client_rate: None,
+            websocket_rate: Rate {
+                per_s: 1000.0,
+                burst: 200,
+            },
         }
     }
 }
@@ -86,6 +137,20 @@ struct Shared {
     walkthroughs: Walkthroughs,
     /// The bearer token of routes that change scenes; none: they are off.
     admin_token: Option<String>,
+    /// Connections and WebSockets, and the signal that ends them.
+    lifecycle: Lifecycle,
+    /// Each client's request rate, when limited.
+    client_rate: Option<ClientRate>,
+}
+
+/// The server's connections and WebSockets as tasks, and the token that
+/// tells them the server is shutting down.
+#[derive(Clone, Default)]
+pub struct Lifecycle {
+    /// Cancelled when the server begins to shut down.
+    pub shutdown: CancellationToken,
+    /// Every connection and WebSocket; shutdown waits for them.
+    pub tasks: TaskTracker,
 }
 
 /// Two scenes with one id: ids must name one scene each.
@@ -134,6 +199,8 @@ impl AppState {
                 sessions,
                 walkthroughs,
                 admin_token: None,
+                lifecycle: Lifecycle::default(),
+                client_rate: limits.client_rate.map(ClientRate::new),
             }),
         })
     }
@@ -234,6 +301,16 @@ impl AppState {
     /// The limits.
     pub fn limits(&self) -> Limits {
         self.inner.limits
+    }
+
+    /// The server's connections and its shutdown signal.
+    pub fn lifecycle(&self) -> &Lifecycle {
+        &self.inner.lifecycle
+    }
+
+    /// Each client's request rate, when the config limits it.
+    pub fn client_rate(&self) -> Option<&ClientRate> {
+        self.inner.client_rate.as_ref()
     }
 
     /// The live sessions.

@@ -7,6 +7,11 @@
 //! view gets an error message (`{"error": ...}`) and the socket stays open;
 //! a session that ends (deleted, expired) gets its error and a close.
 //!
+//! Limits: a message over the body limit closes the socket with `1009`
+//! (`message_too_large`); messages over the WebSocket rate get a
+//! `rate_limited` error and are not answered; shutdown closes every socket
+//! with `1001 going away`.
+//!
 //! Backpressure: one message is read, answered and *sent* before the next
 //! is read. A client that stops reading fills its socket's buffers, the
 //! send waits, nothing more is read, and the client's own writes stall: the
@@ -16,13 +21,18 @@
 use axum::extract::rejection::QueryRejection;
 use axum::extract::ws::rejection::WebSocketUpgradeRejection;
 use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade, close_code};
-use axum::extract::{Path, Query, State};
+use axum::extract::{Extension, Path, Query, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
 use pvsd_proto::xpvs as binary;
 use serde::Deserialize;
 
+use pvsd_proto::error::ErrorCode;
+
 use super::error::ApiError;
+use super::limit::MessageRate;
+use super::listener::ConnectionSlot;
+use super::metrics::Refusal;
 use super::routes::{answer_frame, wants_binary};
 use super::state::AppState;
 
@@ -40,6 +50,7 @@ pub async fn upgrade(
     Path(sid): Path<String>,
     query: Result<Query<WsQuery>, QueryRejection>,
     headers: HeaderMap,
+    slot: Option<Extension<ConnectionSlot>>,
     ws: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
     state.sessions().get(&sid)?;
@@ -59,62 +70,146 @@ pub async fn upgrade(
     Ok(ws
         .max_message_size(limit)
         .max_frame_size(limit)
-        .on_upgrade(move |socket| serve(state, sid, socket, binary)))
+        .on_upgrade(move |socket| {
+            let tasks = state.lifecycle().tasks.clone();
+            // The socket keeps its connection's place under the cap, and
+            // shutdown waits for it.
+            tasks.track_future(async move {
+                let _slot = slot;
+                serve(state, sid, socket, binary).await;
+            })
+        }))
 }
 
-/// Answers views until the client closes or the session ends.
+/// What the server does with one message from the client.
+#[derive(Debug)]
+pub enum Reply {
+    /// Send this and read on.
+    Send(Message),
+    /// Send this error, then close with this frame: the session ended.
+    End(Message, CloseFrame),
+    /// Nothing to send (a ping or pong; pongs are sent for us).
+    Nothing,
+    /// The client closed.
+    Closed,
+}
+
+/// The reply to one message on session `sid`'s socket: a view (JSON text)
+/// gets its frame (`binary`: as `x-pvs`), anything else a named error.
+/// Messages over `rate` are refused without being read. The socket's loop
+/// and the fuzzer both go through here.
+pub async fn reply(
+    state: &AppState,
+    sid: &str,
+    message: Message,
+    binary: bool,
+    rate: &MessageRate,
+) -> Reply {
+    let body = match message {
+        Message::Text(text) => text,
+        Message::Binary(_) => {
+            return Reply::Send(error_message(&ApiError::MalformedJson(
+                "send views as JSON text messages; binary is only for answers".into(),
+            )));
+        }
+        Message::Close(_) => return Reply::Closed,
+        Message::Ping(_) | Message::Pong(_) => return Reply::Nothing,
+    };
+    if let Err(e) = rate.check() {
+        state.metrics().refused(Refusal::WebSocketRate);
+        return Reply::Send(error_message(&e));
+    }
+    match answer_frame(state, sid, body.as_bytes()).await {
+        Ok(frame) if binary => Reply::Send(Message::Binary(binary::encode_frame(&frame).into())),
+        Ok(frame) => Reply::Send(Message::Text(
+            String::from_utf8(frame.to_json())
+                .expect("JSON is UTF-8")
+                .into(),
+        )),
+        Err(
+            e @ (ApiError::UnknownSession(_)
+            | ApiError::SessionExpired { .. }
+            | ApiError::SessionEvicted(_)),
+        ) => Reply::End(
+            error_message(&e),
+            CloseFrame {
+                code: close_code::POLICY,
+                reason: e.status_and_code().1.into(),
+            },
+        ),
+        Err(e) => Reply::Send(error_message(&e)),
+    }
+}
+
+/// Answers views until the client closes, the session ends, or the server
+/// shuts down (a close frame `1001 going away`).
 async fn serve(state: AppState, sid: String, mut socket: WebSocket, binary: bool) {
     state.metrics().websocket(1);
-    while let Some(Ok(message)) = socket.recv().await {
-        let body = match message {
-            Message::Text(text) => text,
-            Message::Binary(_) => {
-                let e = ApiError::MalformedJson(
-                    "send views as JSON text messages; binary is only for answers".into(),
-                );
-                if socket.send(error_message(&e)).await.is_err() {
-                    break;
-                }
-                continue;
-            }
-            Message::Close(_) => break,
-            // Pongs are sent for us.
-            Message::Ping(_) | Message::Pong(_) => continue,
-        };
-        let reply = match answer_frame(&state, &sid, body.as_bytes()).await {
-            Ok(frame) if binary => Message::Binary(binary::encode_frame(&frame).into()),
-            Ok(frame) => Message::Text(
-                String::from_utf8(frame.to_json())
-                    .expect("JSON is UTF-8")
-                    .into(),
-            ),
-            Err(e) => {
-                let ended = matches!(
-                    e,
-                    ApiError::UnknownSession(_)
-                        | ApiError::SessionExpired { .. }
-                        | ApiError::SessionEvicted(_)
-                );
-                if socket.send(error_message(&e)).await.is_err() {
-                    break;
-                }
-                if !ended {
-                    continue;
-                }
+    let rate = MessageRate::new(state.limits().websocket_rate);
+    let shutdown = state.lifecycle().shutdown.clone();
+    loop {
+        let received = tokio::select! {
+            received = socket.recv() => received,
+            () = shutdown.cancelled() => {
                 let _ = socket
                     .send(Message::Close(Some(CloseFrame {
-                        code: close_code::POLICY,
-                        reason: e.status_and_code().1.into(),
+                        code: close_code::AWAY,
+                        reason: "server shutting down".into(),
                     })))
                     .await;
                 break;
             }
         };
-        if socket.send(reply).await.is_err() {
+        let message = match received {
+            Some(Ok(message)) => message,
+            Some(Err(e)) => {
+                if is_too_large(&e) {
+                    state.metrics().refused(Refusal::WebSocketSize);
+                    let limit = state.limits().body_bytes;
+                    let _ = socket
+                        .send(Message::Close(Some(CloseFrame {
+                            code: close_code::SIZE,
+                            reason: format!(
+                                "{}: messages are at most {limit} bytes",
+                                ErrorCode::MessageTooLarge
+                            )
+                            .into(),
+                        })))
+                        .await;
+                }
+                break;
+            }
+            None => break,
+        };
+        let sent = match reply(&state, &sid, message, binary, &rate).await {
+            Reply::Send(m) => socket.send(m).await.is_ok(),
+            Reply::End(m, close) => {
+                if socket.send(m).await.is_ok() {
+                    let _ = socket.send(Message::Close(Some(close))).await;
+                }
+                false
+            }
+            Reply::Nothing => true,
+            Reply::Closed => false,
+        };
+        if !sent {
             break;
         }
     }
     state.metrics().websocket(-1);
+}
+
+/// Whether the socket failed on a message or frame over the size limit.
+fn is_too_large(e: &axum::Error) -> bool {
+    use std::error::Error as _;
+    let mut source = e.source();
+    while let Some(s) = source {
+        if let Some(tungstenite::Error::Capacity(_)) = s.downcast_ref::<tungstenite::Error>() {
+            return true;
+        }
+        source = s.source();
+    }
+    false
 }
 
 fn error_message(e: &ApiError) -> Message {
