@@ -342,7 +342,8 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     }
     let started = std::time::Instant::now();
     let state = AppState::with_methods(scenes, config.limits(), &Registry::standard(), &context)?
-        .with_admin_token(config.admin_token.clone());
+        .with_admin_token(config.admin_token.clone())
+        .with_scene_files(paths);
     tracing::info!(
         ms = started.elapsed().as_millis() as u64,
         bake_dir = %context.bake_dir.as_deref().map_or("none".into(), |d| d.display().to_string()),
@@ -364,6 +365,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
+        tokio::spawn(pvsd::server::reload_on_sighup(state.clone()));
         match (&config.tls_cert, &config.tls_key) {
             (Some(cert), Some(key)) => {
                 let tls = pvsd::server::tls::acceptor(cert, key)?;

@@ -142,7 +142,7 @@ async fn auto_answers_with_the_measured_best_at_the_requests_prices() {
     assert_eq!(auto.walks, ["street", "random"]);
     // What neither auto chose nor a client asked for is out of memory now;
     // the requests below build what they name again.
-    let office = state.scenes().next().unwrap().clone();
+    let office = state.scenes().into_iter().next().unwrap().clone();
     let resident = office.resident();
     assert!(resident.len() < office.names().len(), "{resident:?}");
     assert!(resident.contains(&"frustum"), "{resident:?}");
@@ -172,7 +172,14 @@ async fn auto_answers_with_the_measured_best_at_the_requests_prices() {
     .await;
     assert_eq!(status, StatusCode::OK, "{body}");
     let chosen: VisibleResponse = serde_json::from_value(body).unwrap();
-    let ranking = state.scenes().next().unwrap().ranking().unwrap().clone();
+    let ranking = state
+        .scenes()
+        .into_iter()
+        .next()
+        .unwrap()
+        .ranking()
+        .unwrap()
+        .clone();
     assert_eq!(
         Some(chosen.stats.method.as_str()),
         ranking.best(DRAWING_DOMINATES)
@@ -521,7 +528,7 @@ async fn a_method_that_cannot_be_built_again_is_a_clear_error() {
         &test_context(),
     )
     .unwrap();
-    let city = state.scenes().next().unwrap().clone();
+    let city = state.scenes().into_iter().next().unwrap().clone();
     city.set_ranking(ranking_of([("frustum", 1.0), ("horizon", 100.0)]));
     assert!(city.release_unasked().contains(&"horizon"));
     let (status, body) = call(

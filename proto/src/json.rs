@@ -448,3 +448,26 @@ mod tests {
         assert_eq!(serde_json::from_value::<Stats>(plain).unwrap(), stats(None));
     }
 }
+
+/// The answer of `POST /admin/reload` (and what `SIGHUP` logs): which
+/// scene files were read again and swapped in, which had not changed, and
+/// which could not be loaded (their old scene serves on).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct ReloadReport {
+    /// Scenes whose file changed, now serving the new version; their
+    /// sessions get the whole set (`base: null`) at their next frame.
+    pub reloaded: Vec<String>,
+    /// Scenes whose file had not changed: same scene, same ids.
+    pub unchanged: Vec<String>,
+    /// Scenes whose file could not be read or loaded.
+    pub failed: Vec<ReloadFailure>,
+}
+
+/// A scene file a reload could not use.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct ReloadFailure {
+    /// The scene.
+    pub scene: String,
+    /// Why (the file and the problem).
+    pub error: String,
+}

@@ -48,7 +48,8 @@ use crate::error::ErrorBody;
         operations::create_walkthrough,
         operations::join_walkthrough,
         operations::walkthrough,
-        operations::metrics
+        operations::metrics,
+        operations::reload
     ),
     components(responses(Refused)),
     tags(
@@ -56,7 +57,7 @@ use crate::error::ErrorBody;
         (name = "visibility", description = "Stateless answers: one view, one set"),
         (name = "sessions", description = "A client's temporal cache on the server; frames as deltas"),
         (name = "walkthroughs", description = "Several users in one scene, each an avatar the others see"),
-        (name = "operations", description = "Liveness and metrics"),
+        (name = "operations", description = "Liveness, metrics and scene reload"),
     )
 )]
 pub struct ApiDoc;
@@ -122,8 +123,9 @@ mod operations {
     use super::{Refused, XPvs};
     use crate::error::ErrorBody;
     use crate::json::{
-        FrameResponse, MoveRequest, ObjectInfo, SceneInfo, SessionCreated, SessionRequest,
-        UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated, WalkthroughInfo,
+        FrameResponse, MoveRequest, ObjectInfo, ReloadReport, SceneInfo, SessionCreated,
+        SessionRequest, UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated,
+        WalkthroughInfo,
     };
 
     /// `{id}`: a scene.
@@ -427,6 +429,27 @@ mod operations {
             content_type = "application/openmetrics-text"))
     )]
     fn metrics() {}
+
+    /// Reads every scene file again and swaps in those that changed, with
+    /// their methods prepared anew; `SIGHUP` does the same. Requests in
+    /// flight finish on the old version; sessions of a reloaded scene get
+    /// the whole set (`base: null`) at their next frame; an unchanged file
+    /// keeps its scene and ids; a file that cannot be loaded keeps the old
+    /// scene serving. Needs the server's admin token.
+    #[utoipa::path(
+        post,
+        path = "/admin/reload",
+        tag = "operations",
+        params(
+            ("Authorization" = String, Header, description = "`Bearer <admin_token>` (the server's config)"),
+        ),
+        responses(
+            (status = 200, description = "What was reloaded, what had not changed, what failed", body = ReloadReport),
+            (status = 401, response = Refused),
+            (status = 403, response = Refused),
+        )
+    )]
+    fn reload() {}
 }
 
 #[cfg(test)]

@@ -23,7 +23,7 @@ mod state;
 pub mod tls;
 pub mod walkthrough;
 pub mod wire;
-mod ws;
+pub mod ws;
 
 use std::future::Future;
 
@@ -40,6 +40,7 @@ use tower_http::trace::TraceLayer;
 
 pub use error::ApiError;
 pub use extract::parse;
+pub use limit::{ClientRate, MessageRate};
 pub use listener::{ConnectionLimits, ConnectionSlot};
 pub use metrics::Metrics;
 pub use state::{AppState, DuplicateScene, JsonLimits, Lifecycle, Limits, Rate, SessionLimits};
@@ -91,6 +92,7 @@ fn routes() -> Routes {
     )
     .add(Method::GET, "/walkthroughs/{wid}", routes::walkthrough)
     .add(Method::GET, "/metrics", routes::metrics)
+    .add(Method::POST, "/admin/reload", routes::reload)
 }
 
 /// The (HTTP method, path template) of every route [`app`] serves.
@@ -149,6 +151,43 @@ pub async fn run_tls(
     listener::serve(listener, state, Some(tls), shutdown).await
 }
 
+/// Reloads `state`'s scene files at every SIGHUP ([`AppState::reload`]),
+/// logging what each reload did; runs until the server shuts down.
+pub async fn reload_on_sighup(state: AppState) {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        let mut hangups = match signal(SignalKind::hangup()) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!("cannot listen for SIGHUP: {e}");
+                return;
+            }
+        };
+        let shutdown = state.lifecycle().shutdown.clone();
+        while shutdown
+            .run_until_cancelled(hangups.recv())
+            .await
+            .flatten()
+            .is_some()
+        {
+            tracing::info!("SIGHUP: reloading scene files");
+            let s = state.clone();
+            match tokio::task::spawn_blocking(move || s.reload()).await {
+                Ok(report) => tracing::info!(
+                    reloaded = ?report.reloaded,
+                    unchanged = ?report.unchanged,
+                    failed = report.failed.len(),
+                    "reload done"
+                ),
+                Err(e) => tracing::error!("the reload failed: {e}"),
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = state;
+}
+
 /// Resolves on SIGINT (Ctrl+C) or SIGTERM.
 pub async fn shutdown_signal() {
     let ctrl_c = async {
@@ -175,5 +214,5 @@ pub async fn shutdown_signal() {
         _ = ctrl_c => {},
         _ = terminate => {},
     }
-    tracing::info!("shutting down: finishing requests in flight");
+    tracing::info!("shutdown signal received");
 }

@@ -11,9 +11,9 @@ use axum::extract::{OriginalUri, Path, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use pvsd_proto::json::{
-    AutoInfo, Bounds, FrameResponse, MoveRequest, ObjectInfo, RankedMethod, SceneInfo,
-    SessionCreated, SessionRequest, UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated,
-    WalkthroughInfo,
+    AutoInfo, Bounds, FrameResponse, MoveRequest, ObjectInfo, RankedMethod, ReloadReport,
+    SceneInfo, SessionCreated, SessionRequest, UserJoined, ViewRequest, VisibleResponse,
+    WalkthroughCreated, WalkthroughInfo,
 };
 use pvsd_proto::xpvs as binary;
 
@@ -35,6 +35,7 @@ pub async fn scenes(State(state): State<AppState>) -> Json<Vec<SceneInfo>> {
     Json(
         state
             .scenes()
+            .iter()
             .map(|m| {
                 let s = m.scene();
                 SceneInfo {
@@ -94,7 +95,8 @@ pub async fn objects(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<Vec<ObjectInfo>>, ApiError> {
-    let s = state.scene(&id)?.scene();
+    let methods = state.scene(&id)?;
+    let s = methods.scene();
     Ok(Json(
         s.objects().iter().map(|o| object_info(s, o.id)).collect(),
     ))
@@ -109,10 +111,7 @@ pub async fn move_object(
 ) -> Result<Json<ObjectInfo>, ApiError> {
     // Refused before anything else is read: an unauthorized client learns
     // nothing about the scene.
-    let authorization = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok());
-    state.authorize_admin(authorization)?;
+    authorize(&state, &headers)?;
     let methods = state.scene(&id)?;
     let scene = methods.scene();
     // An id that is no number names no object.
@@ -125,6 +124,27 @@ pub async fn move_object(
         .motion()
         .place(oid, to, scene.origin, scene.objects().len())?;
     Ok(Json(object_info(scene, oid)))
+}
+
+/// Checks the request's admin token (`Authorization: Bearer …`).
+fn authorize(state: &AppState, headers: &HeaderMap) -> Result<(), ApiError> {
+    let authorization = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok());
+    state.authorize_admin(authorization)
+}
+
+/// `POST /admin/reload`: reads every scene file again and swaps in those
+/// that changed (admin only; `SIGHUP` does the same).
+pub async fn reload(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+) -> Result<Json<ReloadReport>, ApiError> {
+    authorize(&state, &headers)?;
+    let report = tokio::task::spawn_blocking(move || state.reload())
+        .await
+        .map_err(|e| ApiError::Internal(format!("the reload failed: {e}")))?;
+    Ok(Json(report))
 }
 
 /// One entry of `GET /scenes/{id}/objects`, at the object's current box.
@@ -167,7 +187,7 @@ pub async fn visible(
     let req: ViewRequest = parse(&body, state.limits().json)?;
     req.check_stateless()?;
     let spec = req.method_spec()?;
-    let (method, cache) = prepare_client(methods, &spec).await?;
+    let (method, cache) = prepare_client(&methods, &spec).await?;
     let view = View::new(req.camera(), methods.scene())?;
     let culled = methods.cull(&method, CullJob::new(view, cache)).await?;
     let (out, stats) = (culled.job.out, culled.stats);
@@ -207,7 +227,7 @@ fn scene_and_spec(
     body: &[u8],
 ) -> Result<(Arc<SceneMethods>, MethodSpec), ApiError> {
     let req: SessionRequest = parse(body, state.limits().json)?;
-    let methods = state.scene(&req.scene)?.clone();
+    let methods = state.scene(&req.scene)?;
     let spec = method_spec(req.method.as_deref(), &req.options)?;
     Ok((methods, spec))
 }
@@ -239,7 +259,7 @@ pub async fn answer_frame(
     sid: &str,
     body: &[u8],
 ) -> Result<FrameResponse, ApiError> {
-    let session = state.sessions().get(sid)?;
+    let session = on_current_scene(state, state.sessions().get(sid)?).await?;
     let req: ViewRequest = parse(body, state.limits().json)?;
     req.check_frame()?;
     let view = View::new(req.camera(), session.scene.scene())?;
@@ -255,6 +275,21 @@ pub async fn answer_frame(
         .metrics()
         .observe_cull(&session.scene.scene().id, &answered.stats);
     Ok(answered.frame)
+}
+
+/// The session, moved to its scene's current version if a reload
+/// replaced the one it was made on.
+async fn on_current_scene(
+    state: &AppState,
+    session: Arc<Session>,
+) -> Result<Arc<Session>, ApiError> {
+    let current = state.scene(&session.scene.scene().id)?;
+    if Arc::ptr_eq(&current, &session.scene) {
+        return Ok(session);
+    }
+    let (method, cache) = prepare_client(&current, &session.spec()).await?;
+    let moved = session.rebound(current, method, cache).await;
+    state.sessions().replace(&session, moved)
 }
 
 /// `POST /sessions/{sid}/frames`: the change since the frame the client holds.

@@ -34,8 +34,8 @@ use super::metrics::Metrics;
 use super::state::SessionLimits;
 use super::walkthrough::User;
 use crate::cull::{
-    ClientCache, CullJob, CullStats, Culler, MethodOptions, Occludees, SceneMethods, View,
-    VisibleSet,
+    ClientCache, CullJob, CullStats, Culler, MethodOptions, MethodSpec, Occludees, SceneMethods,
+    View, VisibleSet,
 };
 
 /// Past frames a session keeps, so a client that lost answers can name an
@@ -129,6 +129,30 @@ impl Session {
             created_bytes: frames.weighed,
             frames: Arc::new(tokio::sync::Mutex::new(frames)),
         }
+    }
+
+    /// The method and options its frames are answered with.
+    pub fn spec(&self) -> MethodSpec {
+        MethodSpec {
+            name: self.method.name().to_string(),
+            options: self.options.clone(),
+        }
+    }
+
+    /// This session on a reloaded scene: the same id and user, `method`
+    /// and `cache` made for `scene`, frame numbers going on; no frame is
+    /// kept, so its next answer is the whole set (`base: null`).
+    pub async fn rebound(
+        &self,
+        scene: Arc<SceneMethods>,
+        method: Arc<dyn Culler>,
+        cache: ClientCache,
+    ) -> Session {
+        let next = self.frames.lock().await.next;
+        let mut session = Session::new(scene, method, cache, self.user.clone());
+        session.id = self.id.clone();
+        session.frames.lock().await.next = next;
+        session
     }
 
     /// Answers one frame, after every frame that reached the session
@@ -381,6 +405,28 @@ impl Sessions {
                 }
                 _ => Op::Nop,
             });
+    }
+
+    /// Puts `new` (the same id) in `old`'s place, if `old` is still the live
+    /// session of that id; else keeps what is there. Returns what is live.
+    pub fn replace(&self, old: &Arc<Session>, new: Session) -> Result<Arc<Session>, ApiError> {
+        let new = Arc::new(new);
+        let slot = self.slot(new.clone(), new.created_bytes);
+        let entry = self
+            .live
+            .entry(old.id.clone())
+            .and_compute_with(|live| match live {
+                Some(e) if Arc::ptr_eq(&e.value().session, old) => {
+                    self.bytes.fetch_add(slot.bytes, Ordering::Relaxed);
+                    Op::Put(slot)
+                }
+                _ => Op::Nop,
+            });
+        match entry {
+            moka::ops::compute::CompResult::ReplacedWith(e)
+            | moka::ops::compute::CompResult::Unchanged(e) => Ok(e.into_value().session),
+            _ => Err(self.gone(&old.id)),
+        }
     }
 
     /// Ends a session; 404/410 as [`Sessions::get`] when it is not live.

@@ -5,8 +5,11 @@
 //! other.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
-use std::time::Duration;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::{Duration, Instant};
+
+use pvsd_proto::json::{ReloadFailure, ReloadReport};
 
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
@@ -19,8 +22,7 @@ use super::session::Sessions;
 use super::walkthrough::Walkthroughs;
 use crate::cull::{MethodContext, Registry, SceneMethods};
 use crate::eval::{RankParams, rank_cached};
-use crate::scene::BakeCache;
-use crate::scene::Scene;
+use crate::scene::{BakeCache, Scene, load_path};
 
 /// Limits applied to every request.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -125,8 +127,17 @@ pub struct AppState {
 }
 
 struct Shared {
-    /// Scenes by id, each with the methods it supports.
-    scenes: BTreeMap<String, Arc<SceneMethods>>,
+    /// Scenes by id, each with the methods it supports; a reload swaps a
+    /// scene's entry, and requests holding the old `Arc` finish on it.
+    scenes: RwLock<BTreeMap<String, Arc<SceneMethods>>>,
+    /// The files scenes were loaded from, by id: what a reload reads.
+    files: BTreeMap<String, PathBuf>,
+    /// How a reloaded scene's methods are prepared.
+    registry: Registry,
+    context: MethodContext,
+    /// One reload at a time; and how to rank a reloaded scene, once the
+    /// server ranks.
+    reloading: Mutex<Option<(RankParams, Option<BakeCache>)>>,
     /// Counters and histograms behind `/metrics`.
     metrics: Metrics,
     /// Body size and time limits.
@@ -193,7 +204,11 @@ impl AppState {
             Walkthroughs::new(limits.sessions.max_walkthroughs, limits.sessions.idle);
         Ok(AppState {
             inner: Arc::new(Shared {
-                scenes: map,
+                scenes: RwLock::new(map),
+                files: BTreeMap::new(),
+                registry: registry.clone(),
+                context: context.clone(),
+                reloading: Mutex::new(None),
                 metrics,
                 limits,
                 sessions,
@@ -253,43 +268,103 @@ impl AppState {
     /// (the measuring takes one core for about a second a scene). Once a
     /// scene is ranked, the methods neither `auto` chose nor a client asked
     /// for are released ([`SceneMethods::release_unasked`]) until first
-    /// asked.
+    /// asked. Scenes reloaded later are ranked the same way.
     pub fn rank_in_background(
         &self,
         params: RankParams,
         cache: Option<BakeCache>,
     ) -> std::thread::JoinHandle<()> {
-        let state = self.clone();
-        std::thread::Builder::new()
-            .name("pvsd-rank".into())
-            .spawn(move || {
-                for methods in state.scenes() {
-                    methods.set_ranking(rank_cached(methods, &params, cache.as_ref()));
-                    let released = methods.release_unasked();
-                    tracing::info!(
-                        scene = %methods.scene().id,
-                        auto = methods.auto_choice(methods.frame_cost()),
-                        released = ?released,
-                        "ranked; methods no client asked for are released until asked"
-                    );
+        *lock(&self.inner.reloading) = Some((params, cache.clone()));
+        rank_on_a_thread(self.scenes(), params, cache)
+    }
+
+    /// This state with the files its scenes were loaded from (a scene's id
+    /// is its file's stem), which [`AppState::reload`] reads again.
+    ///
+    /// # Panics
+    /// Once the state is shared (cloned): set them right after making it.
+    pub fn with_scene_files(mut self, files: Vec<PathBuf>) -> AppState {
+        let shared = Arc::get_mut(&mut self.inner)
+            .expect("the scene files are set before the state is shared");
+        for path in files {
+            if let Some(id) = path.file_stem().and_then(|s| s.to_str()) {
+                shared.files.insert(id.to_string(), path);
+            }
+        }
+        self
+    }
+
+    /// Reads every scene file again and swaps in each one that changed,
+    /// with its methods prepared anew (blocking: loading and preparing take
+    /// seconds on a big scene). Requests in flight finish on the scene they
+    /// started with; sessions move to the new one at their next frame,
+    /// which answers the whole set (`base: null`). A file that did not
+    /// change keeps its scene, so its ids and every session's caches stay.
+    /// A file that cannot be read or loaded keeps the old scene serving,
+    /// and the report and the log say why.
+    pub fn reload(&self) -> ReloadReport {
+        let shared = &*self.inner;
+        let ranking = lock(&shared.reloading);
+        let mut report = ReloadReport::default();
+        let mut fresh = Vec::new();
+        for (id, path) in &shared.files {
+            let started = Instant::now();
+            let Some(old) = self.scene(id).ok() else {
+                continue;
+            };
+            let scene = match load_path(path) {
+                Ok(scene) => scene,
+                Err(e) => {
+                    tracing::error!(scene = %id, "reload failed, the old scene serves on: {e}");
+                    report.failed.push(ReloadFailure {
+                        scene: id.clone(),
+                        error: e.to_string(),
+                    });
+                    continue;
                 }
-            })
-            .expect("a thread can be started")
+            };
+            if scene.source_hash.is_some() && scene.source_hash == old.scene().source_hash {
+                report.unchanged.push(id.clone());
+                continue;
+            }
+            let methods = Arc::new(SceneMethods::prepare_with(
+                Arc::new(scene),
+                &shared.registry,
+                &shared.context,
+            ));
+            write(&shared.scenes).insert(id.clone(), methods.clone());
+            tracing::info!(
+                scene = %id,
+                ms = started.elapsed().as_millis() as u64,
+                "reloaded {}: sessions get the whole set at their next frame",
+                path.display()
+            );
+            report.reloaded.push(id.clone());
+            fresh.push(methods);
+        }
+        if let Some((params, cache)) = ranking.clone()
+            && !fresh.is_empty()
+        {
+            let _ = rank_on_a_thread(fresh, params, cache);
+        }
+        report
     }
 
-    /// Every scene, by id.
-    pub fn scenes(&self) -> impl Iterator<Item = &Arc<SceneMethods>> {
-        self.inner.scenes.values()
+    /// Every scene, by id, as they are now.
+    pub fn scenes(&self) -> Vec<Arc<SceneMethods>> {
+        read(&self.inner.scenes).values().cloned().collect()
     }
 
-    /// The scene `id`, or `unknown_scene` listing the loaded ones.
-    pub fn scene(&self, id: &str) -> Result<&Arc<SceneMethods>, ApiError> {
-        self.inner
-            .scenes
+    /// The scene `id` as it is now, or `unknown_scene` listing the loaded
+    /// ones.
+    pub fn scene(&self, id: &str) -> Result<Arc<SceneMethods>, ApiError> {
+        let scenes = read(&self.inner.scenes);
+        scenes
             .get(id)
+            .cloned()
             .ok_or_else(|| ApiError::UnknownScene {
                 id: id.to_string(),
-                loaded: self.inner.scenes.keys().cloned().collect(),
+                loaded: scenes.keys().cloned().collect(),
             })
     }
 
@@ -322,4 +397,42 @@ impl AppState {
     pub fn walkthroughs(&self) -> &Walkthroughs {
         &self.inner.walkthroughs
     }
+}
+
+/// Ranks `scenes` one after another on a thread of its own, releasing
+/// what each ranking leaves unused (see [`AppState::rank_in_background`]).
+fn rank_on_a_thread(
+    scenes: Vec<Arc<SceneMethods>>,
+    params: RankParams,
+    cache: Option<BakeCache>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::Builder::new()
+        .name("pvsd-rank".into())
+        .spawn(move || {
+            for methods in scenes {
+                methods.set_ranking(rank_cached(&methods, &params, cache.as_ref()));
+                let released = methods.release_unasked();
+                tracing::info!(
+                    scene = %methods.scene().id,
+                    auto = methods.auto_choice(methods.frame_cost()),
+                    released = ?released,
+                    "ranked; methods no client asked for are released until asked"
+                );
+            }
+        })
+        .expect("a thread can be started")
+}
+
+// The locks guard maps changed by one insert at a time: a panic elsewhere
+// cannot leave them half-changed, so a poisoned lock is still good.
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn read<T>(l: &RwLock<T>) -> std::sync::RwLockReadGuard<'_, T> {
+    l.read().unwrap_or_else(|e| e.into_inner())
+}
+
+fn write<T>(l: &RwLock<T>) -> std::sync::RwLockWriteGuard<'_, T> {
+    l.write().unwrap_or_else(|e| e.into_inner())
 }

@@ -55,6 +55,7 @@ struct Presence {
 }
 
 /// One user of a walkthrough, as its session holds it.
+#[derive(Clone)]
 pub struct User {
     /// The walkthrough.
     pub walkthrough: Arc<Walkthrough>,
