@@ -48,6 +48,9 @@ pub struct Plan {
     pub walk: WalkKind,
     /// Metres per frame.
     pub step: f64,
+    /// Session mode: frames after which a user's session is replaced by
+    /// a new one (0: never).
+    pub churn: u64,
     /// The scene's bounds.
     pub bounds: Bounds,
     /// When to stop sending.
@@ -146,10 +149,10 @@ fn view(pose: ([f64; 3], [f64; 3]), extra: &str) -> String {
 /// Runs user `u` until the plan's end.
 pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recorder>) {
     let walk = Walk::new(plan.walk, &plan.bounds, u64::from(u) + 1, plan.step);
-    let sid = match plan.mode {
+    let session = match plan.mode {
         Mode::Stateless => None,
         Mode::Session | Mode::Ws => match create_session(&plan, &http).await {
-            Ok(sid) => Some(sid),
+            Ok(sid) => Some(Arc::new(SessionLink::new(&plan, sid))),
             Err(kind) => {
                 rec.error(kind);
                 return;
@@ -163,15 +166,99 @@ pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recor
         .rate
         .map_or(0.0, |r| (f64::from(u) * 0.618_033_988_75).fract() / r);
     let start = Instant::now() + Duration::from_secs_f64(phase);
-    match (plan.mode, &sid) {
-        (Mode::Ws, Some(sid)) => ws_user(&plan, sid, walk, start, &rec).await,
-        _ => http_user(&plan, sid.as_deref(), walk, start, &http, &rec).await,
+    match (plan.mode, &session) {
+        (Mode::Ws, Some(link)) => ws_user(&plan, &link.sid(), walk, start, &rec).await,
+        _ => http_user(&plan, session.clone(), walk, start, &http, &rec).await,
     }
-    if let Some(sid) = sid {
+    if let Some(link) = session {
         let _ = http
-            .delete(format!("{}/sessions/{sid}", plan.target))
+            .delete(format!("{}/sessions/{}", plan.target, link.sid()))
             .send()
             .await;
+    }
+}
+
+/// A user's session, made again when the server has lost it: pvsd's
+/// sessions are soft state (`proto/wire-format.md`, "Sessions are soft
+/// state"), so a frame answered `404 unknown_session`, `410`, or not at
+/// all (the server restarted) means: make a new session and go on; its
+/// first frame is the whole set.
+struct SessionLink {
+    /// The session's generation (0 for the first) and its frames' URL.
+    current: Mutex<(u64, String, reqwest::Url)>,
+    /// One renewal at a time, and not more often than every 100 ms while
+    /// the server is away.
+    renewing: tokio::sync::Mutex<Option<Instant>>,
+}
+
+impl SessionLink {
+    fn new(plan: &Plan, sid: String) -> SessionLink {
+        let url = Self::frames_url(plan, &sid);
+        SessionLink {
+            current: Mutex::new((0, sid, url)),
+            renewing: tokio::sync::Mutex::new(None),
+        }
+    }
+
+    fn frames_url(plan: &Plan, sid: &str) -> reqwest::Url {
+        reqwest::Url::parse(&format!("{}/sessions/{sid}/frames", plan.target))
+            .expect("the target was parsed before")
+    }
+
+    fn sid(&self) -> String {
+        self.current.lock().unwrap().1.clone()
+    }
+
+    /// The generation and URL frames go to now.
+    fn url(&self) -> (u64, reqwest::Url) {
+        let c = self.current.lock().unwrap();
+        (c.0, c.2.clone())
+    }
+
+    /// Ends the session and makes a new one, as a user leaving and another
+    /// joining would; the user's held set starts over.
+    async fn churn(&self, plan: &Plan, http: &reqwest::Client, held: &Mutex<Held>, rec: &Recorder) {
+        let _guard = self.renewing.lock().await;
+        let old = self.sid();
+        let _ = http
+            .delete(format!("{}/sessions/{old}", plan.target))
+            .send()
+            .await;
+        match create_session(plan, http).await {
+            Ok(sid) => {
+                let url = Self::frames_url(plan, &sid);
+                let mut c = self.current.lock().unwrap();
+                *c = (c.0 + 1, sid, url);
+                *held.lock().unwrap() = Held::default();
+                rec.churned();
+            }
+            Err(kind) => rec.error(kind),
+        }
+    }
+
+    /// Makes a new session if generation `seen` is still the current one;
+    /// the user's held set starts over.
+    async fn renew(
+        &self,
+        seen: u64,
+        plan: &Plan,
+        http: &reqwest::Client,
+        held: &Mutex<Held>,
+        rec: &Recorder,
+    ) {
+        let mut last = self.renewing.lock().await;
+        if self.current.lock().unwrap().0 != seen
+            || last.is_some_and(|t| t.elapsed() < Duration::from_millis(100))
+        {
+            return;
+        }
+        *last = Some(Instant::now());
+        if let Ok(sid) = create_session(plan, http).await {
+            let url = Self::frames_url(plan, &sid);
+            *self.current.lock().unwrap() = (seen + 1, sid, url);
+            *held.lock().unwrap() = Held::default();
+            rec.reconnect();
+        }
     }
 }
 
@@ -206,22 +293,20 @@ async fn due(plan: &Plan, start: Instant, k: u64) -> Option<Instant> {
 
 async fn http_user(
     plan: &Arc<Plan>,
-    sid: Option<&str>,
+    session: Option<Arc<SessionLink>>,
     mut walk: Walk,
     start: Instant,
     http: &reqwest::Client,
     rec: &Arc<Recorder>,
 ) {
-    let url = match sid {
-        Some(sid) => format!("{}/sessions/{sid}/frames", plan.target),
-        None => format!("{}/scenes/{}/visible", plan.target, plan.scene),
-    };
     // Parsed once: reqwest would parse a string on every request.
-    let Ok(url) = reqwest::Url::parse(&url) else {
+    let Ok(stateless) =
+        reqwest::Url::parse(&format!("{}/scenes/{}/visible", plan.target, plan.scene))
+    else {
         rec.error("bad_target");
         return;
     };
-    let method = match sid {
+    let method = match session {
         Some(_) => String::new(),
         None => format!(
             r#","method":{},"options":{}"#,
@@ -241,18 +326,26 @@ async fn http_user(
         let Some(due) = due(plan, start, k).await else {
             break;
         };
+        if let Some(link) = &session
+            && plan.churn > 0
+            && k > 0
+            && k % plan.churn == 0
+        {
+            link.churn(plan, http, &held, rec).await;
+        }
         let pose = walk.next_pose();
-        let (http, url, method) = (http.clone(), url.clone(), method.clone());
+        let (http, stateless, method) = (http.clone(), stateless.clone(), method.clone());
         let (held, rec, slots) = (held.clone(), rec.clone(), slots.clone());
-        let session = sid.is_some();
+        let (session, shared_plan) = (session.clone(), plan.clone());
         let exchange = async move {
             let Ok(_slot) = slots.acquire_owned().await else {
                 return;
             };
+            let (generation, url) = session.as_ref().map_or((0, stateless), |s| s.url());
             // The base is read when the frame is sent, not when it was due.
             let held_frame = held.lock().unwrap().frame;
             let body = match held_frame {
-                Some(b) if session => view(pose, &format!(r#","base":{b}"#)),
+                Some(b) if session.is_some() => view(pose, &format!(r#","base":{b}"#)),
                 _ => view(pose, &method),
             };
             let sent = body.len();
@@ -267,9 +360,17 @@ async fn http_user(
                 Err(e) if e.is_timeout() => Err("timeout"),
                 Err(_) => Err("connect"),
             };
-            match answer.and_then(|b| check(&b, session, &held).map(|()| b.len())) {
+            match answer.and_then(|b| check(&b, session.is_some(), &held).map(|()| b.len())) {
                 Ok(n) => rec.ok(due.elapsed(), sent, n),
-                Err(kind) => rec.error(kind),
+                Err(kind) => {
+                    rec.error(kind);
+                    if let Some(link) = &session
+                        && matches!(kind, "http_404" | "http_410" | "connect" | "read")
+                    {
+                        link.renew(generation, &shared_plan, &http, &held, &rec)
+                            .await;
+                    }
+                }
             }
         };
         if plan.rate.is_some() {

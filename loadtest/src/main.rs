@@ -64,6 +64,10 @@ struct Args {
     /// Metres a user moves per frame.
     #[arg(long, default_value_t = 0.5)]
     step: f64,
+    /// Session mode: each user ends its session and makes a new one every
+    /// this many frames (users leaving and joining); 0: one session each.
+    #[arg(long, default_value_t = 0)]
+    churn: u64,
     /// Write the report as JSON here.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -134,6 +138,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
         max_in_flight: args.max_in_flight,
         walk: args.walk,
         step: args.step,
+        churn: args.churn,
         bounds,
         end,
     });
@@ -176,7 +181,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
     let config = serde_json::json!({
         "target": target, "scene": args.scene, "users": args.users,
         "duration": args.duration, "method": args.method, "rate": args.rate,
-        "max_in_flight": args.max_in_flight, "mode": args.mode, "walk": args.walk, "step": args.step,
+        "max_in_flight": args.max_in_flight, "mode": args.mode, "walk": args.walk, "step": args.step, "churn": args.churn,
     });
     let report = recorder.report(start.elapsed(), config);
     print!("{}", report.table());

@@ -17,6 +17,8 @@ pub struct Recorder {
     bytes_in: AtomicU64,
     bytes_out: AtomicU64,
     errors: Mutex<BTreeMap<String, u64>>,
+    reconnects: AtomicU64,
+    churned: AtomicU64,
 }
 
 impl Recorder {
@@ -31,6 +33,8 @@ impl Recorder {
             bytes_in: AtomicU64::new(0),
             bytes_out: AtomicU64::new(0),
             errors: Mutex::new(BTreeMap::new()),
+            reconnects: AtomicU64::new(0),
+            churned: AtomicU64::new(0),
         }
     }
 
@@ -56,6 +60,16 @@ impl Recorder {
             .unwrap()
             .entry(kind.to_string())
             .or_default() += 1;
+    }
+
+    /// One session made again after the server lost it.
+    pub fn reconnect(&self) {
+        self.reconnects.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// One session ended and replaced on purpose (`--churn`).
+    pub fn churned(&self) {
+        self.churned.fetch_add(1, Ordering::Relaxed);
     }
 
     /// Requests and errors so far, and the p99 so far in milliseconds.
@@ -85,6 +99,8 @@ impl Recorder {
             max_ms: h.max() as f64 / 1e3,
             bytes_in: self.bytes_in.load(Ordering::Relaxed),
             bytes_out: self.bytes_out.load(Ordering::Relaxed),
+            reconnects: self.reconnects.load(Ordering::Relaxed),
+            churned: self.churned.load(Ordering::Relaxed),
         }
     }
 }
@@ -118,6 +134,11 @@ pub struct Report {
     pub bytes_in: u64,
     /// Request body bytes sent.
     pub bytes_out: u64,
+    /// Sessions made again after the server lost them (restarted, or
+    /// evicted them): each cost its user one failed frame or more.
+    pub reconnects: u64,
+    /// Sessions ended and replaced on purpose (`--churn`).
+    pub churned: u64,
 }
 
 impl Report {
@@ -126,7 +147,7 @@ impl Report {
         let mut t = format!(
             "requests {}  errors {}  {:.1} s  {:.0} frames/s\n\
              latency ms  p50 {:.3}  p95 {:.3}  p99 {:.3}  p99.9 {:.3}  max {:.3}\n\
-             bytes  in {}  out {}\n",
+             bytes  in {}  out {}  reconnects {}  churned {}\n",
             self.requests,
             self.errors,
             self.seconds,
@@ -137,7 +158,9 @@ impl Report {
             self.p999_ms,
             self.max_ms,
             self.bytes_in,
-            self.bytes_out
+            self.bytes_out,
+            self.reconnects,
+            self.churned
         );
         for (kind, n) in &self.errors_by_kind {
             t.push_str(&format!("errors {kind}: {n}\n"));

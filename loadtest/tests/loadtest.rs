@@ -97,18 +97,33 @@ impl Drop for Pvsd {
 /// `pvsd serve` on a loopback port with a generated city of 100 buildings,
 /// served as `city`.
 fn pvsd_server() -> Pvsd {
+    pvsd_city(100)
+}
+
+/// `pvsd serve` on a loopback port with a generated city of `buildings`.
+fn pvsd_city(buildings: u32) -> Pvsd {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("city.glb");
     let status = Command::new(pvsd_binary())
-        .args(["gen", "city", "--buildings", "100", "-o"])
+        .args(["gen", "city", "--buildings", &buildings.to_string(), "-o"])
         .arg(&scene)
         .stderr(Stdio::null())
         .status()
         .unwrap();
     assert!(status.success(), "pvsd gen city failed");
+    let (child, url) = serve_scene(&scene, "127.0.0.1:0");
+    Pvsd {
+        child,
+        url,
+        _dir: dir,
+    }
+}
+
+/// `pvsd serve --scene scene --addr addr`, once it listens, and its URL.
+fn serve_scene(scene: &Path, addr: &str) -> (Child, String) {
     let mut child = Command::new(pvsd_binary())
-        .args(["serve", "--addr", "127.0.0.1:0", "--scene"])
-        .arg(&scene)
+        .args(["serve", "--addr", addr, "--scene"])
+        .arg(scene)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -127,11 +142,7 @@ fn pvsd_server() -> Pvsd {
     };
     // Keep reading its log, so a full pipe never blocks the server.
     std::thread::spawn(move || lines.for_each(drop));
-    Pvsd {
-        child,
-        url: format!("http://{addr}"),
-        _dir: dir,
-    }
+    (child, format!("http://{addr}"))
 }
 
 fn loadtest(args: &[&str]) -> Value {
@@ -365,4 +376,119 @@ fn open_loop_bounds_the_requests_in_flight() {
     run("16");
     let seen = most.load(Ordering::SeqCst);
     assert!(seen > 4, "a wider cap was not used: {seen} at once");
+}
+
+/// A server killed (SIGKILL) and started again on its address while users
+/// walk: their sessions are gone (404, or no answer while it is down), each
+/// user makes a new one and goes on; the chain of deltas never breaks, and
+/// neither side crashes.
+#[test]
+fn a_server_killed_and_restarted_mid_run_costs_sessions_not_the_run() {
+    let mut server = pvsd_server();
+    let target = server.url.clone();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report.json");
+    let mut run = Command::new(env!("CARGO_BIN_EXE_loadtest"))
+        .args(["--target", &target, "--scene", "city", "--users", "4"])
+        .args(["--duration", "6", "--rate", "40", "--json"])
+        .arg(&out)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(2));
+    server.child.kill().unwrap();
+    server.child.wait().unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let scene = server._dir.path().join("city.glb");
+    let (restarted, _) = serve_scene(&scene, target.trim_start_matches("http://"));
+    server.child = restarted;
+    assert!(run.wait().unwrap().success(), "loadtest failed");
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let reconnects = r["reconnects"].as_u64().unwrap();
+    assert!(reconnects >= 4, "every user makes a new session: {r}");
+    // Frames lost while the server was away, or to the dead sessions; never
+    // an answer that does not decode or chain.
+    for (kind, _) in r["errors_by_kind"].as_object().unwrap() {
+        assert!(
+            ["connect", "read", "http_404", "timeout"].contains(&kind.as_str()),
+            "error '{kind}': {r}"
+        );
+    }
+    let answered = r["requests"].as_u64().unwrap() - r["errors"].as_u64().unwrap();
+    assert!(answered > 4 * 40 * 3, "few frames answered: {r}");
+}
+
+/// What `/proc` says of a process: resident memory (KiB) and open files.
+fn rss_and_fds(pid: u32) -> (u64, usize) {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let rss = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap();
+    let fds = std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .unwrap()
+        .count();
+    (rss, fds)
+}
+
+/// The soak's short form (`scripts/soak.sh` is the 30-minute one): a minute
+/// of users walking at a fixed rate with sessions churning, the server's
+/// memory and open files sampled: no errors, memory flat after warm-up,
+/// files back where they started once the users are gone.
+#[test]
+fn a_minute_of_churning_sessions_leaves_memory_and_files_bounded() {
+    let server = pvsd_city(1000);
+    let pid = server.child.id();
+    let target = server.url.clone();
+    std::thread::sleep(Duration::from_secs(3));
+    let (_, fds_before) = rss_and_fds(pid);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report.json");
+    let started = Instant::now();
+    let mut run = Command::new(env!("CARGO_BIN_EXE_loadtest"))
+        .args(["--target", &target, "--scene", "city", "--users", "32"])
+        .args(["--duration", "60", "--rate", "20", "--churn", "100"])
+        .args(["--method", "horizon", "--json"])
+        .arg(&out)
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut samples = Vec::new();
+    while run.try_wait().unwrap().is_none() {
+        samples.push((started.elapsed().as_secs_f64(), rss_and_fds(pid)));
+        std::thread::sleep(Duration::from_secs(2));
+    }
+    assert!(run.wait().unwrap().success());
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    eprintln!("samples (s, (rss KiB, fds)): {samples:?}");
+    assert_eq!(r["errors"], 0, "{r}");
+    assert!(r["churned"].as_u64().unwrap() > 300, "{r}");
+    let warm = samples
+        .iter()
+        .find(|(t, _)| *t >= 20.0)
+        .map(|(_, (rss, _))| *rss)
+        .expect("a sample after warm-up");
+    let peak = samples
+        .iter()
+        .filter(|(t, _)| *t >= 20.0)
+        .map(|(_, (rss, _))| *rss)
+        .max()
+        .unwrap();
+    assert!(
+        peak <= warm + warm / 5,
+        "memory grew after warm-up: {warm} KiB at 20 s, {peak} KiB at most"
+    );
+    let most_fds = samples.iter().map(|(_, (_, f))| *f).max().unwrap();
+    assert!(
+        most_fds <= fds_before + 32 * 4 + 16,
+        "{most_fds} files open"
+    );
+    std::thread::sleep(Duration::from_secs(1));
+    let (_, fds_after) = rss_and_fds(pid);
+    assert!(
+        fds_after <= fds_before + 2,
+        "{fds_after} files open after, {fds_before} before"
+    );
 }
