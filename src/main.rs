@@ -340,6 +340,11 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.bake_dir {
         context.bake_dir = Some(dir.clone());
     }
+    if let Some(dir) = &context.bake_dir
+        && let Err(e) = BakeCache::new(dir).check_writable()
+    {
+        tracing::warn!("the bake cache cannot be written ({e}): serving without caching bakes");
+    }
     let started = std::time::Instant::now();
     let state = AppState::with_methods(scenes, config.limits(), &Registry::standard(), &context)?
         .with_admin_token(config.admin_token.clone())

@@ -53,6 +53,22 @@ impl BakeCache {
         BakeCache { dir: dir.into() }
     }
 
+    /// Whether bakes can be written here: the folder is made if missing and
+    /// a probe file written and removed. `Err` says why not (a read-only
+    /// or full disk, a path through a file); bakes are then built in
+    /// memory each time, and the caller should say so once.
+    pub fn check_writable(&self) -> Result<(), String> {
+        std::fs::create_dir_all(&self.dir)
+            .map_err(|e| format!("cannot make {}: {e}", self.dir.display()))?;
+        let probe = self
+            .dir
+            .join(format!(".pvsd-write-probe.{}", std::process::id()));
+        let written = std::fs::File::create(&probe)
+            .and_then(|mut f| f.write_all(b"pvsd").and_then(|()| f.sync_all()));
+        let _ = std::fs::remove_file(&probe);
+        written.map_err(|e| format!("cannot write in {}: {e}", self.dir.display()))
+    }
+
     /// The user's cache folder for pvsd: `$XDG_CACHE_HOME/pvsd`, else
     /// `$HOME/.cache/pvsd`; `None` when neither is set.
     pub fn default_dir() -> Option<PathBuf> {
