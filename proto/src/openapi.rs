@@ -33,7 +33,9 @@ use crate::error::ErrorBody;
             (proto/src/openapi.rs); tests/openapi.rs checks that these paths are exactly the \
             router's routes, sends every operation's example to the router and checks the answer \
             against the schemas here. The binary encoding application/x-pvs is specified in \
-            proto/wire-format.md."
+            proto/wire-format.md. Any route may also answer 429 rate_limited (when the server \
+            limits each client's rate) and 503 overloaded (past its connection cap), both with \
+            Retry-After."
     ),
     paths(
         operations::healthz,
@@ -236,6 +238,9 @@ mod operations {
             (status = 403, response = Refused),
             (status = 404, response = Refused),
             (status = 409, response = Refused),
+            (status = 408, description = "body_timeout: the body came slower than the server's body timeout", body = ErrorBody),
+            (status = 413, response = Refused),
+            (status = 429, description = "rate_limited: over the client's request rate (when the server limits it); see Retry-After", body = ErrorBody),
         )
     )]
     fn move_object() {}
@@ -265,6 +270,8 @@ mod operations {
             (status = 400, response = Refused),
             (status = 404, response = Refused),
             (status = 413, response = Refused),
+            (status = 408, description = "body_timeout: the body came slower than the server's body timeout", body = ErrorBody),
+            (status = 429, description = "rate_limited: over the client's request rate (when the server limits it); see Retry-After", body = ErrorBody),
             (status = 503, description = "timeout, or busy: a device method's queue is full \
                 (come back after Retry-After seconds)", body = ErrorBody,
                 headers(("Retry-After" = u64, description = "Seconds to wait, with busy"))),
@@ -290,6 +297,8 @@ mod operations {
             (status = 400, response = Refused),
             (status = 404, response = Refused),
             (status = 413, response = Refused),
+            (status = 408, description = "body_timeout: the body came slower than the server's body timeout", body = ErrorBody),
+            (status = 429, description = "rate_limited: over the client's request rate (when the server limits it); see Retry-After", body = ErrorBody),
         )
     )]
     fn create_session() {}
@@ -322,6 +331,8 @@ mod operations {
             (status = 410, description = "session_expired (idle past the limit) or session_evicted \
                 (past the server's caps)", body = ErrorBody),
             (status = 413, response = Refused),
+            (status = 408, description = "body_timeout: the body came slower than the server's body timeout", body = ErrorBody),
+            (status = 429, description = "rate_limited: over the client's request rate (when the server limits it); see Retry-After", body = ErrorBody),
             (status = 503, description = "timeout, or busy: a device method's queue is full \
                 (come back after Retry-After seconds)", body = ErrorBody,
                 headers(("Retry-After" = u64, description = "Seconds to wait, with busy"))),
@@ -388,6 +399,8 @@ mod operations {
             (status = 400, response = Refused),
             (status = 404, response = Refused),
             (status = 413, response = Refused),
+            (status = 408, description = "body_timeout: the body came slower than the server's body timeout", body = ErrorBody),
+            (status = 429, description = "rate_limited: over the client's request rate (when the server limits it); see Retry-After", body = ErrorBody),
         )
     )]
     fn create_walkthrough() {}
