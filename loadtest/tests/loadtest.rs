@@ -492,3 +492,50 @@ fn a_minute_of_churning_sessions_leaves_memory_and_files_bounded() {
         "{fds_after} files open after, {fds_before} before"
     );
 }
+
+/// SIGTERM under load: the server stops taking connections, answers what
+/// is in flight, closes WebSockets with a reason and exits cleanly, well
+/// within its grace period; the users see the server go, nothing worse.
+#[test]
+fn sigterm_under_load_drains_and_exits_within_the_grace_period() {
+    let mut server = pvsd_server();
+    let target = server.url.clone();
+    let runs: Vec<Child> = ["session", "ws"]
+        .iter()
+        .map(|mode| {
+            Command::new(env!("CARGO_BIN_EXE_loadtest"))
+                .args(["--target", &target, "--scene", "city", "--users", "4"])
+                .args(["--duration", "4", "--mode", mode])
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(1500));
+    let status = Command::new("kill")
+        .args(["-TERM", &server.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let asked = Instant::now();
+    let exited = loop {
+        if let Some(status) = server.child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            asked.elapsed() < Duration::from_secs(10),
+            "still running after the 10 s grace period"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(exited.success(), "exit status {exited}");
+    assert!(
+        asked.elapsed() < Duration::from_secs(3),
+        "{:?}",
+        asked.elapsed()
+    );
+    for mut run in runs {
+        assert!(run.wait().unwrap().success(), "loadtest failed");
+    }
+}

@@ -1,7 +1,7 @@
 //! HTTPS: a rustls acceptor from PEM files (`tls_cert`, `tls_key`).
 //!
 //! TLS in pvsd is for a server reached directly. Behind a reverse proxy
-//! (the recommended set-up, `docs/operations.md`), the proxy terminates
+//! (the recommended set-up, `docs/robustness.md`), the proxy terminates
 //! TLS and pvsd listens on loopback or a private network over HTTP.
 
 use std::path::Path;
