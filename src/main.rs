@@ -361,6 +361,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
             context.bake_dir.as_ref().map(BakeCache::new),
         );
     }
+    open_files_for(config.limits().connections.max_connections);
     let addr = args
         .addr
         .or(config.addr)
@@ -384,6 +385,23 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+/// Raises the soft limit on open files towards what `max_connections`
+/// needs (each connection is a file, and the server keeps some of its
+/// own), as nginx's `worker_rlimit_nofile` does; says so when the hard
+/// limit is lower, since connections past it fail to be accepted.
+fn open_files_for(max_connections: usize) {
+    let wanted = max_connections as u64 + 256;
+    match rlimit::increase_nofile_limit(wanted) {
+        Ok(got) if got < wanted => tracing::warn!(
+            open_files = got,
+            max_connections,
+            "the open-file limit is below max_connections: connections past it will wait to be accepted"
+        ),
+        Ok(_) => {}
+        Err(e) => tracing::warn!("cannot raise the open-file limit: {e}"),
+    }
 }
 
 fn generate(cmd: GenCommand) -> anyhow::Result<()> {
