@@ -234,10 +234,10 @@ async fn a_client_over_its_rate_gets_429_with_retry_after() {
 async fn a_websocket_over_its_rate_or_size_is_refused_by_name() {
     let s = server(Limits {
         body_bytes: 4096,
-        websocket_rate: Rate {
+        websocket_rate: Some(Rate {
             per_s: 0.5,
             burst: 2,
-        },
+        }),
         ..Limits::default()
     })
     .await;

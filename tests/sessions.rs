@@ -18,7 +18,7 @@ use pvsd::cull::{CullJob, MethodSpec, View};
 use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::geom::Camera;
 use pvsd::scene::Scene;
-use pvsd::server::{AppState, Limits, Rate, SessionLimits, app};
+use pvsd::server::{AppState, Limits, SessionLimits, app};
 use pvsd_proto::json::{FrameResponse, SessionCreated, VisibleResponse};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
@@ -533,16 +533,7 @@ async fn a_burst_on_one_session_stays_ordered() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_websocket_client_that_stops_reading_stalls_only_itself() {
     let scene = city_scene(200, 4, [0.0; 3]);
-    // The client sends as fast as it can: no message rate, so that only
-    // the buffers stop it.
-    let unlimited = Limits {
-        websocket_rate: Rate {
-            per_s: 1e9,
-            burst: u32::MAX,
-        },
-        ..Limits::default()
-    };
-    let s = Server::with(vec![scene.clone()], unlimited).await;
+    let s = Server::with(vec![scene.clone()], Limits::default()).await;
     let c = reqwest::Client::new();
     let sid = new_session(&c, &s, json!({"scene": "city", "method": "frustum"})).await;
     let (ws, _) = tokio_tungstenite::connect_async(s.ws_url(&format!("/sessions/{sid}/ws")))

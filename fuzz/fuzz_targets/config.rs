@@ -21,7 +21,7 @@ fuzz_target!(|data: &[u8]| {
     assert!(!l.connections.body_timeout.is_zero());
     assert!(l.sessions.max_sessions > 0 && l.sessions.cache_bytes > 0);
     assert!(l.json.max_depth > 0 && l.json.max_array > 0);
-    for rate in l.client_rate.iter().chain([&l.websocket_rate]) {
+    for rate in l.client_rate.iter().chain(&l.websocket_rate) {
         assert!(rate.per_s.is_finite() && rate.per_s > 0.0 && rate.burst > 0);
     }
     for p in cfg.scenes.iter().chain(&cfg.bake_dir).chain(&cfg.tls_cert) {

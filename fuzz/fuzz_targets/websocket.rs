@@ -8,7 +8,6 @@
 use axum::extract::ws::Message;
 use libfuzzer_sys::fuzz_target;
 use pvsd::server::ws::{Reply, reply};
-use pvsd::server::{MessageRate, Rate};
 use pvsd_proto::error::ErrorBody;
 use pvsd_proto::json::FrameResponse;
 
@@ -23,13 +22,9 @@ fuzz_target!(|data: &[u8]| {
         _ => Message::Ping(payload.to_vec().into()),
     };
     let binary = kind & 0x80 != 0;
-    let rate = MessageRate::new(Rate {
-        per_s: 1e9,
-        burst: u32::MAX,
-    });
     let answer = f
         .runtime
-        .block_on(reply(&f.state, &f.session, message, binary, &rate));
+        .block_on(reply(&f.state, &f.session, message, binary, None));
     match answer {
         Reply::Send(Message::Text(text)) => {
             if let Ok(e) = serde_json::from_str::<ErrorBody>(&text) {

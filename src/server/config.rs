@@ -22,8 +22,8 @@
 //! json_max_array = 1024          # items of one JSON array (413 past it)
 //! rate_limit_per_s = 200.0       # requests a second per client IP (429
 //! rate_limit_burst = 400         #   past it); no key, no limit
-//! websocket_messages_per_s = 1000.0  # per WebSocket; past it, refused
-//! websocket_burst = 200
+//! websocket_messages_per_s = 500.0  # per WebSocket; past it, refused
+//! websocket_burst = 100          #   (no key, no limit)
 //! admin_token = "…"              # bearer token of routes that change scenes
 //! tls_cert = "cert.pem"          # both set: HTTPS (rustls), else HTTP
 //! tls_key = "key.pem"
@@ -94,9 +94,9 @@ pub struct ServeConfig {
     pub rate_limit_per_s: Option<f64>,
     /// Requests a client IP may make at once (default: a second's worth).
     pub rate_limit_burst: Option<u32>,
-    /// Messages a second each WebSocket may send.
+    /// Messages a second each WebSocket may send (off when absent).
     pub websocket_messages_per_s: Option<f64>,
-    /// Messages a WebSocket may send at once.
+    /// Messages a WebSocket may send at once (default: a second's worth).
     pub websocket_burst: Option<u32>,
     /// PEM certificate chain; with `tls_key`, the server speaks HTTPS.
     pub tls_cert: Option<PathBuf>,
@@ -194,6 +194,11 @@ impl ServeConfig {
         if cfg.rate_limit_burst.is_some() && cfg.rate_limit_per_s.is_none() {
             return Err("rate_limit_burst: set rate_limit_per_s too (no rate, no limit)".into());
         }
+        if cfg.websocket_burst.is_some() && cfg.websocket_messages_per_s.is_none() {
+            return Err(
+                "websocket_burst: set websocket_messages_per_s too (no rate, no limit)".into(),
+            );
+        }
         if cfg.tls_cert.is_some() != cfg.tls_key.is_some() {
             return Err("tls_cert and tls_key: give both (HTTPS) or neither (HTTP)".into());
         }
@@ -252,12 +257,10 @@ impl ServeConfig {
                     .rate_limit_burst
                     .unwrap_or((per_s.ceil() as u32).max(1)),
             }),
-            websocket_rate: Rate {
-                per_s: self
-                    .websocket_messages_per_s
-                    .unwrap_or(d.websocket_rate.per_s),
-                burst: self.websocket_burst.unwrap_or(d.websocket_rate.burst),
-            },
+            websocket_rate: self.websocket_messages_per_s.map(|per_s| Rate {
+                per_s,
+                burst: self.websocket_burst.unwrap_or((per_s.ceil() as u32).max(1)),
+            }),
         }
     }
 }

@@ -39,8 +39,9 @@ pub struct Limits {
     pub json: JsonLimits,
     /// Requests a second each client (IP address) may make; none: no limit.
     pub client_rate: Option<Rate>,
-    /// Messages a second each WebSocket may send.
-    pub websocket_rate: Rate,
+    /// Messages a second each WebSocket may send; none: no limit (a
+    /// socket's backpressure already holds it to one answer at a time).
+    pub websocket_rate: Option<Rate>,
 }
 
 /// How deep and how wide a JSON body may be: no body the routes take
@@ -103,8 +104,6 @@ impl Default for Limits {
     fn default() -> Self {
         // A view is ~300 bytes; 64 KiB leaves room for options without
         // letting a client make the server buffer megabytes.
-        // A walker asks 30–120 frames a second; 1,000 a second with bursts
-        // of 200 leaves room for a client catching up after a stall.
         Limits {
             body_bytes: 64 * 1024,
             request_timeout: Duration::from_secs(10),
@@ -112,10 +111,7 @@ impl Default for Limits {
             connections: ConnectionLimits::default(),
             json: JsonLimits::default(),
             client_rate: None,
-            websocket_rate: Rate {
-                per_s: 1000.0,
-                burst: 200,
-            },
+            websocket_rate: None,
         }
     }
 }

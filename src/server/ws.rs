@@ -8,9 +8,9 @@
 //! a session that ends (deleted, expired) gets its error and a close.
 //!
 //! Limits: a message over the body limit closes the socket with `1009`
-//! (`message_too_large`); messages over the WebSocket rate get a
-//! `rate_limited` error and are not answered; shutdown closes every socket
-//! with `1001 going away`.
+//! (`message_too_large`); when the config sets a message rate, messages
+//! over it get a `rate_limited` error and are not answered; shutdown
+//! closes every socket with `1001 going away`.
 //!
 //! Backpressure: one message is read, answered and *sent* before the next
 //! is read. A client that stops reading fills its socket's buffers, the
@@ -96,14 +96,14 @@ pub enum Reply {
 
 /// The reply to one message on session `sid`'s socket: a view (JSON text)
 /// gets its frame (`binary`: as `x-pvs`), anything else a named error.
-/// Messages over `rate` are refused without being read. The socket's loop
-/// and the fuzzer both go through here.
+/// Messages over `rate`, when there is one, are refused without being
+/// read. The socket's loop and the fuzzer both go through here.
 pub async fn reply(
     state: &AppState,
     sid: &str,
     message: Message,
     binary: bool,
-    rate: &MessageRate,
+    rate: Option<&MessageRate>,
 ) -> Reply {
     let body = match message {
         Message::Text(text) => text,
@@ -115,7 +115,7 @@ pub async fn reply(
         Message::Close(_) => return Reply::Closed,
         Message::Ping(_) | Message::Pong(_) => return Reply::Nothing,
     };
-    if let Err(e) = rate.check() {
+    if let Some(Err(e)) = rate.map(MessageRate::check) {
         state.metrics().refused(Refusal::WebSocketRate);
         return Reply::Send(error_message(&e));
     }
@@ -145,7 +145,7 @@ pub async fn reply(
 /// shuts down (a close frame `1001 going away`).
 async fn serve(state: AppState, sid: String, mut socket: WebSocket, binary: bool) {
     state.metrics().websocket(1);
-    let rate = MessageRate::new(state.limits().websocket_rate);
+    let rate = state.limits().websocket_rate.map(MessageRate::new);
     let shutdown = state.lifecycle().shutdown.clone();
     loop {
         let received = tokio::select! {
@@ -181,7 +181,7 @@ async fn serve(state: AppState, sid: String, mut socket: WebSocket, binary: bool
             }
             None => break,
         };
-        let sent = match reply(&state, &sid, message, binary, &rate).await {
+        let sent = match reply(&state, &sid, message, binary, rate.as_ref()).await {
             Reply::Send(m) => socket.send(m).await.is_ok(),
             Reply::End(m, close) => {
                 if socket.send(m).await.is_ok() {
