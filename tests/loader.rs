@@ -316,3 +316,35 @@ fn short_glb_headers_are_errors_not_panics() {
         assert!(e.starts_with("g.glb: "), "{e}");
     }
 }
+
+/// Found by the `gltf` fuzz target: a primitive naming a POSITION accessor
+/// the file does not have made the `gltf` crate's own validation index out
+/// of bounds and panic; it is a precise error now.
+#[test]
+fn a_primitive_naming_a_missing_accessor_is_an_error_not_a_panic() {
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}]
+    })
+    .to_string();
+    let e = pvsd::scene::load_slice("x", json.as_bytes(), None, Path::new("x.gltf"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("x.gltf")
+            && e.contains("mesh 0 primitive 0 names accessor 0, but the file has 0"),
+        "{e}"
+    );
+    // And through the indices.
+    let json = json.replace(
+        r#""attributes":{"POSITION":0}"#,
+        r#""attributes":{},"indices":3"#,
+    );
+    let e = pvsd::scene::load_slice("x", json.as_bytes(), None, Path::new("x.gltf"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("names accessor 3"), "{e}");
+}

@@ -60,8 +60,16 @@ pub fn load_slice(
         problem,
     };
     check_glb_header(bytes).map_err(fail)?;
+    let invalid = |e: gltf::Error| fail(format!("not a valid glTF file: {e}"));
+    // Validated in two steps: the `gltf` crate's own validation indexes a
+    // primitive's POSITION accessor before checking it exists (a panic on a
+    // file with none; found by `fuzz/` target `gltf`), so that reference
+    // is checked here first.
     let gltf::Gltf { document, blob } =
-        gltf::Gltf::from_slice(bytes).map_err(|e| fail(format!("not a valid glTF file: {e}")))?;
+        gltf::Gltf::from_slice_without_validation(bytes).map_err(invalid)?;
+    let root = document.into_json();
+    check_accessor_references(&root).map_err(fail)?;
+    let document = gltf::Document::from_json(root).map_err(invalid)?;
     let buffers = load_buffers(&document, blob, base_dir).map_err(fail)?;
     let scene = document
         .default_scene()
@@ -77,6 +85,22 @@ pub fn load_slice(
     let mut scene = builder.finish();
     scene.source_hash = Some(hash.digest128());
     Ok(scene)
+}
+
+/// Every accessor a mesh primitive names (attributes, indices) exists.
+fn check_accessor_references(root: &gltf::json::Root) -> Result<(), String> {
+    let count = root.accessors.len();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let named = prim.attributes.values().chain(&prim.indices);
+            if let Some(a) = named.map(|a| a.value()).find(|&a| a >= count) {
+                return Err(format!(
+                    "mesh {m} primitive {p} names accessor {a}, but the file has {count}"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The `gltf` crate subtracts the header size from a GLB's declared length
