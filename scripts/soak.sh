@@ -22,9 +22,9 @@ pid=$!
 until curl -sf http://127.0.0.1:18081/healthz >/dev/null; do sleep 0.2; done
 # Let the background ranking finish, so `auto` has chosen.
 until curl -s http://127.0.0.1:18081/scenes | grep -q '"status":"measured"'; do sleep 1; done
-echo "== capacity: $users users, closed loop, 15 s, $method"
+echo "== capacity: $users users, closed loop, churn 200, 15 s, $method"
 target/release/loadtest --target http://127.0.0.1:18081 --scene city --users $users \
-  --duration 15 --method "$method" --json "$work/capacity.json" 2>/dev/null | head -2
+  --duration 15 --churn 200 --method "$method" --json "$work/capacity.json" 2>/dev/null | head -2
 rate=$(python3 -c "import json; r=json.load(open('$work/capacity.json')); print(round(0.7 * r['rps'] / $users, 2))")
 echo "== soak: $users users at $rate frames/s each (70%), churn 200, $minutes min"
 out=docs/soak.csv
@@ -42,5 +42,6 @@ while kill -0 $load 2>/dev/null; do
 done
 wait $load
 cat "$work/soak.txt"
+cp "$work/soak.log" /tmp/soak-progress.log
 cp "$work/soak.json" docs/soak.json
 python3 scripts/soak_plot.py docs/soak.csv docs/soak.json docs/soak.svg

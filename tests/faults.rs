@@ -10,28 +10,15 @@ mod common;
 use std::time::Duration;
 
 use common::city_scene;
-use common::server::Server;
+use common::server::{Server, new_session};
 use futures_util::{SinkExt, StreamExt};
 use pvsd::server::Limits;
-use serde_json::Value;
+use serde_json::{Value, json};
 use tokio::io::AsyncWriteExt;
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 
 const VIEW: &str = r#"{"eye":[0,1.7,0],"forward":[1,0,0.2]}"#;
-
-async fn session(c: &reqwest::Client, s: &Server) -> String {
-    let created: Value = c
-        .post(s.url("/sessions"))
-        .body(r#"{"scene":"city","method":"horizon"}"#)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    created["session"].as_str().unwrap().to_string()
-}
 
 async fn frame(c: &reqwest::Client, s: &Server, sid: &str) -> reqwest::StatusCode {
     c.post(s.url(&format!("/sessions/{sid}/frames")))
@@ -49,7 +36,7 @@ async fn frame(c: &reqwest::Client, s: &Server, sid: &str) -> reqwest::StatusCod
 async fn clients_vanishing_mid_request_and_mid_frame_leave_nothing_behind() {
     let s = Server::with(vec![city_scene(30, 2, [0.0; 3])], Limits::default()).await;
     let c = reqwest::Client::new();
-    let sid = session(&c, &s).await;
+    let sid = new_session(&c, &s, json!({"scene": "city", "method": "horizon"})).await;
     assert_eq!(frame(&c, &s, &sid).await, 200);
     for _ in 0..20 {
         // A frame's head and half its body, then gone.
@@ -104,7 +91,7 @@ async fn clients_vanishing_mid_request_and_mid_frame_leave_nothing_behind() {
 async fn a_session_answers_only_to_its_whole_id() {
     let s = Server::with(vec![city_scene(10, 2, [0.0; 3])], Limits::default()).await;
     let c = reqwest::Client::new();
-    let sid = session(&c, &s).await;
+    let sid = new_session(&c, &s, json!({"scene": "city", "method": "horizon"})).await;
     assert_eq!(sid.len(), 32);
     assert!(sid.bytes().all(|b| b.is_ascii_hexdigit()));
     let walkthrough: Value = c

@@ -9,13 +9,14 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::city_scene;
-use common::server::Server;
+use common::server::{Server, new_session};
 use futures_util::{SinkExt, StreamExt};
 use pvsd::server::{AppState, ConnectionLimits, JsonLimits, Limits, Rate};
-use serde_json::Value;
+use serde_json::{Value, json};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::protocol::CloseFrame;
 use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode;
 
 const VIEW: &str = r#"{"eye":[0,1.7,0],"forward":[1,0,0.2]}"#;
@@ -45,6 +46,20 @@ async fn raw(server: &Server, bytes: &[u8], wait: Duration) -> String {
 fn body_of(answer: &str) -> Value {
     let body = answer.split("\r\n\r\n").nth(1).unwrap_or("");
     serde_json::from_str(body).unwrap_or_else(|e| panic!("not JSON ({e}): {answer}"))
+}
+
+/// The close frame the server ends `ws` with, skipping what comes before.
+async fn close_frame<S>(ws: &mut S) -> CloseFrame
+where
+    S: StreamExt<Item = Result<Message, tokio_tungstenite::tungstenite::Error>> + Unpin,
+{
+    loop {
+        match ws.next().await {
+            Some(Ok(Message::Close(frame))) => return frame.expect("a close frame with a reason"),
+            Some(Ok(_)) => continue,
+            other => panic!("no close frame: {other:?}"),
+        }
+    }
 }
 
 #[tokio::test]
@@ -242,16 +257,7 @@ async fn a_websocket_over_its_rate_or_size_is_refused_by_name() {
     })
     .await;
     let c = reqwest::Client::new();
-    let created: Value = c
-        .post(s.url("/sessions"))
-        .body(r#"{"scene":"city","method":"frustum"}"#)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let sid = created["session"].as_str().unwrap().to_string();
+    let sid = new_session(&c, &s, json!({"scene": "city", "method": "frustum"})).await;
     let (mut ws, _) = tokio_tungstenite::connect_async(s.ws_url(&format!("/sessions/{sid}/ws")))
         .await
         .unwrap();
@@ -265,14 +271,7 @@ async fn a_websocket_over_its_rate_or_size_is_refused_by_name() {
     assert_eq!(codes, ["frame", "frame", "rate_limited"]);
     // A message over the body limit closes the socket with 1009, named.
     let _ = ws.send(Message::text("x".repeat(10_000))).await;
-    let closed = loop {
-        match ws.next().await {
-            Some(Ok(Message::Close(frame))) => break frame,
-            Some(Ok(_)) => continue,
-            other => panic!("no close frame: {other:?}"),
-        }
-    };
-    let frame = closed.expect("a close frame with a reason");
+    let frame = close_frame(&mut ws).await;
     assert_eq!(frame.code, CloseCode::Size);
     assert!(frame.reason.starts_with("message_too_large"), "{frame:?}");
     assert_eq!(
@@ -342,13 +341,7 @@ async fn shutdown_answers_requests_in_flight_and_closes_websockets() {
     slow.read_to_end(&mut answer).await.unwrap();
     let answer = String::from_utf8_lossy(&answer);
     assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
-    let close = loop {
-        match ws.next().await {
-            Some(Ok(Message::Close(frame))) => break frame.expect("a close frame with a reason"),
-            Some(Ok(_)) => continue,
-            other => panic!("no close frame: {other:?}"),
-        }
-    };
+    let close = close_frame(&mut ws).await;
     assert_eq!(close.code, CloseCode::Away);
     assert_eq!(close.reason, "server shutting down");
     drop(ws);

@@ -10,12 +10,12 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use common::server::Server;
+use common::server::{Server, new_session};
 use pvsd::scene::generate::{CityOptions, city};
 use pvsd::scene::load_path;
 use pvsd::server::{AppState, Limits};
 use pvsd_proto::json::{FrameResponse, ObjectInfo, ReloadReport, VisibleResponse};
-use serde_json::Value;
+use serde_json::{Value, json};
 
 const TOKEN: &str = "reload-test-token";
 const VIEW: &str = r#"{"eye":[0,300,0],"forward":[0.01,-1,0],"fov_y_deg":120}"#;
@@ -120,17 +120,12 @@ impl Fixture {
 #[tokio::test]
 async fn a_changed_file_is_swapped_in_and_its_sessions_get_the_whole_set() {
     let f = fixture().await;
-    let created: Value = f
-        .http
-        .post(f.server.url("/sessions"))
-        .body(r#"{"scene":"a","method":"frustum"}"#)
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    let sid = created["session"].as_str().unwrap().to_string();
+    let sid = new_session(
+        &f.http,
+        &f.server,
+        json!({"scene": "a", "method": "frustum"}),
+    )
+    .await;
     let first = f.frame(&sid).await;
     assert_eq!((first.frame, first.base), (1, None));
     let second = f.frame(&sid).await;

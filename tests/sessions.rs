@@ -10,7 +10,7 @@ use std::time::Duration;
 use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use common::router::{NO_BODY, call};
-use common::server::{Held, Server, view_json, xpvs};
+use common::server::{Held, Server, new_session, view_json, xpvs};
 use common::{city_scene, fetch};
 use futures_util::{SinkExt, StreamExt};
 use http_body_util::BodyExt;
@@ -37,17 +37,6 @@ fn street(scene: &Scene, frames: usize) -> Vec<Camera> {
         },
     )
     .unwrap()
-}
-
-async fn new_session(client: &reqwest::Client, s: &Server, body: Value) -> String {
-    let res = client
-        .post(s.url("/sessions"))
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(res.status(), 201);
-    res.json::<SessionCreated>().await.unwrap().session
 }
 
 async fn stateless(client: &reqwest::Client, s: &Server, cam: &Camera, method: &str) -> Vec<u32> {

@@ -331,6 +331,13 @@ async fn http_user(
             && k > 0
             && k % plan.churn == 0
         {
+            // A user leaving waits for its frames in flight, as a client
+            // closing a view would, so none is answered by a session it
+            // has already ended.
+            let all = plan.max_in_flight as u32;
+            let Ok(_idle) = slots.acquire_many(all).await else {
+                break;
+            };
             link.churn(plan, http, &held, rec).await;
         }
         let pose = walk.next_pose();
@@ -344,9 +351,14 @@ async fn http_user(
             let (generation, url) = session.as_ref().map_or((0, stateless), |s| s.url());
             // The base is read when the frame is sent, not when it was due.
             let held_frame = held.lock().unwrap().frame;
-            let body = match held_frame {
-                Some(b) if session.is_some() => view(pose, &format!(r#","base":{b}"#)),
-                _ => view(pose, &method),
+            // A user holding nothing yet names base 0, never a frame, so
+            // that each answer until its first arrives is a whole set: with
+            // no base the server would answer a delta against a frame
+            // still on its way to the user.
+            let body = match (held_frame, &session) {
+                (Some(b), Some(_)) => view(pose, &format!(r#","base":{b}"#)),
+                (None, Some(_)) => view(pose, r#","base":0"#),
+                (_, None) => view(pose, &method),
             };
             let sent = body.len();
             let request = http
@@ -360,7 +372,16 @@ async fn http_user(
                 Err(e) if e.is_timeout() => Err("timeout"),
                 Err(_) => Err("connect"),
             };
-            match answer.and_then(|b| check(&b, session.is_some(), &held).map(|()| b.len())) {
+            // An answer of a session the user has since replaced (the
+            // server lost it) belongs to no set the user holds now.
+            let stale = || session.as_ref().is_some_and(|s| s.url().0 != generation);
+            let checked = answer.and_then(|b| {
+                if stale() {
+                    return Ok(b.len());
+                }
+                check(&b, session.is_some(), &held).map(|()| b.len())
+            });
+            match checked {
                 Ok(n) => rec.ok(due.elapsed(), sent, n),
                 Err(kind) => {
                     rec.error(kind);

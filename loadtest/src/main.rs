@@ -100,6 +100,10 @@ async fn run(args: Args) -> anyhow::Result<()> {
         // until the machine runs out of ports.
         .pool_max_idle_per_host(args.users as usize * args.max_in_flight.max(2))
         .timeout(Duration::from_secs(30))
+        // Below pvsd's header timeout (10 s by default), which also closes
+        // idle keep-alive connections: the client lets an idle connection
+        // go first, rather than send on one the server is closing.
+        .pool_idle_timeout(Duration::from_secs(5))
         // pvsd never redirects; following redirects costs every request.
         .redirect(reqwest::redirect::Policy::none())
         .build()?;

@@ -7,7 +7,7 @@ use std::net::SocketAddr;
 
 use pvsd::geom::Camera;
 use pvsd::server::{AppState, Limits};
-use pvsd_proto::json::FrameResponse;
+use pvsd_proto::json::{FrameResponse, SessionCreated};
 use serde_json::{Value, json};
 
 /// A server running until dropped.
@@ -70,6 +70,18 @@ impl Drop for Server {
             let _ = s.send(());
         }
     }
+}
+
+/// `POST /sessions` with `body`; the new session's id.
+pub async fn new_session(client: &reqwest::Client, s: &Server, body: Value) -> String {
+    let res = client
+        .post(s.url("/sessions"))
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 201);
+    res.json::<SessionCreated>().await.unwrap().session
 }
 
 /// A camera as a view body.
