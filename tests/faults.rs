@@ -198,3 +198,81 @@ fn an_unwritable_bake_cache_is_reported_and_the_server_serves_without_it() {
     child.wait().unwrap();
     assert!(!bakes.exists());
 }
+
+/// A full disk under the bake cache: the bakes cannot be saved (each says
+/// why in the log), none leaves a partial file behind, and the server
+/// serves. Needs a tiny file system, so it mounts a 64 KiB tmpfs; where
+/// mounting is not allowed (not root, a locked-down container) it says so
+/// and checks nothing.
+#[test]
+fn a_full_disk_under_the_bake_cache_leaves_no_partial_file_and_serves() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = dir.path().join("full");
+    std::fs::create_dir(&full).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=64k", "tmpfs"])
+        .arg(&full)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        eprintln!("skipped: cannot mount a tmpfs here");
+        return;
+    }
+    struct Unmount<'a>(&'a std::path::Path);
+    impl Drop for Unmount<'_> {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount").arg(self.0).status();
+        }
+    }
+    let _unmount = Unmount(&full);
+    let scene = dir.path().join("city.glb");
+    std::fs::write(
+        &scene,
+        pvsd::scene::generate::city(&pvsd::scene::generate::CityOptions {
+            buildings: 200,
+            seed: 4,
+            ..Default::default()
+        })
+        .to_glb(),
+    )
+    .unwrap();
+    let (mut child, addr, log) = common::spawn_serve(
+        &[
+            "--scene",
+            scene.to_str().unwrap(),
+            "--bake-dir",
+            full.to_str().unwrap(),
+        ],
+        &[],
+    );
+    let unsaved = log
+        .iter()
+        .filter(|l| l.contains("baked") && l.contains("No space left on device"))
+        .count();
+    assert!(
+        unsaved > 0,
+        "no bake said the disk is full:\n{}",
+        log.join("\n")
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let r = reqwest::Client::new()
+            .post(format!("http://{addr}/scenes/city/visible"))
+            .body(r#"{"eye":[0,1.7,0],"forward":[1,0,0.2],"method":"occlusion_tree"}"#)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+    });
+    child.kill().unwrap();
+    child.wait().unwrap();
+    // Whatever did fit is whole; nothing half-written is left.
+    for entry in std::fs::read_dir(&full).unwrap() {
+        let name = entry.unwrap().file_name().into_string().unwrap();
+        assert!(!name.ends_with(".tmp"), "a partial file is left: {name}");
+    }
+}
