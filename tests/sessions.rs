@@ -19,7 +19,7 @@ use pvsd::eval::{WalkKind, WalkParams, walk};
 use pvsd::geom::Camera;
 use pvsd::scene::Scene;
 use pvsd::server::{AppState, Limits, SessionLimits, app};
-use pvsd_proto::json::{FrameResponse, SessionCreated, VisibleResponse};
+use pvsd_proto::json::{FrameResponse, VisibleResponse};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 use tower::ServiceExt;
