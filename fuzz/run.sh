@@ -19,7 +19,8 @@ if [ "$target" = all ]; then targets=("${all[@]}"); else targets=("$target"); fi
 cargo +nightly fuzz build -O
 total=0
 for t in "${targets[@]}"; do
-  mkdir -p "target/corpus/$t"
+  # An empty corpus folder is not in git: make it.
+  mkdir -p "target/corpus/$t" "corpus/$t"
   dirs=("target/corpus/$t" "corpus/$t")
   extra=()
   if [ "$t" = gltf ]; then
