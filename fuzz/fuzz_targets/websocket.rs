@@ -7,7 +7,7 @@
 
 use axum::extract::ws::Message;
 use libfuzzer_sys::fuzz_target;
-use pvsd::server::ws::{Reply, reply};
+use pvsd::server::ws::{Encoding, Reply, reply};
 use pvsd_proto::error::ErrorBody;
 use pvsd_proto::json::FrameResponse;
 
@@ -22,9 +22,13 @@ fuzz_target!(|data: &[u8]| {
         _ => Message::Ping(payload.to_vec().into()),
     };
     let binary = kind & 0x80 != 0;
+    let encoding = Encoding {
+        binary,
+        stats: kind & 0x40 != 0,
+    };
     let answer = f
         .runtime
-        .block_on(reply(&f.state, &f.session, message, binary, None));
+        .block_on(reply(&f.state, &f.session, message, encoding, None));
     match answer {
         Reply::Send(Message::Text(text)) => {
             if let Ok(e) = serde_json::from_str::<ErrorBody>(&text) {

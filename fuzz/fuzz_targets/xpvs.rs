@@ -53,6 +53,7 @@ fuzz_target!(|input: Input| match input {
                 added,
                 removed,
                 users_visible: None,
+                stats: None,
             };
             let Ok(Message::Frame(got)) = decode(&encode_frame(&frame)) else {
                 panic!("a frame does not decode");

@@ -500,6 +500,7 @@ mod tests {
             added: added.to_vec(),
             removed: removed.to_vec(),
             users_visible: None,
+            stats: None,
         }
     }
 

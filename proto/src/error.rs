@@ -95,6 +95,8 @@ error_codes! {
     Overloaded = "overloaded",
     /// 413: a WebSocket message over the body limit (the close frame's reason).
     MessageTooLarge = "message_too_large",
+    /// 422: the scene has no walk of this kind (no free space at eye height, no geometry).
+    NoWalk = "no_walk",
 }
 
 impl std::fmt::Display for ErrorCode {

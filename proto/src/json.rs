@@ -243,6 +243,47 @@ pub struct ObjectInfo {
     pub bounds: Option<Bounds>,
 }
 
+/// One camera of a walk (`GET /scenes/{id}/walk`): a view without its
+/// image size, which is the client's.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct WalkView {
+    /// Eye position, world coordinates.
+    pub eye: [f64; 3],
+    /// Viewing direction, unit length.
+    pub forward: [f64; 3],
+    /// Up direction.
+    pub up: [f64; 3],
+    /// Vertical field of view, degrees.
+    pub fov_y_deg: f64,
+    /// Near plane distance.
+    pub near: f64,
+    /// Far plane distance.
+    pub far: f64,
+}
+
+/// The answer of `GET /scenes/{id}/walk`: a path through the scene that
+/// clients replay (the web viewer's start and its auto-walk, scripted
+/// tests, the example client).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
+pub struct WalkResponse {
+    /// `street`, `random`, `orbit` or `views` (what `pvsd eval --walk` takes).
+    pub kind: String,
+    /// Metres between views, when asked for (`step`); `null`: the walk's own.
+    #[schema(required = true)]
+    pub step: Option<f64>,
+    /// The cameras, in order.
+    pub views: Vec<WalkView>,
+}
+
+/// The body of `POST /scenes/{id}/meshes`: the objects whose triangles
+/// the client wants, answered in this order (`application/x-pvs-mesh`).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, Eq, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MeshesRequest {
+    /// Object ids (at most the server's JSON array limit, 1,024 by default).
+    pub ids: Vec<u32>,
+}
+
 /// The body of `PUT /scenes/{id}/objects/{oid}`: the object's new world
 /// transform, as a glTF node's (translation, then rotation, then scale;
 /// each optional, identity when absent).
@@ -332,7 +373,7 @@ pub struct SessionCreated {
 /// A session frame: the change from `base` to this frame's visible set
 /// (JSON, or `application/x-pvs` as `proto/wire-format.md` gives it).
 /// Apply `removed`, then `added`, to the set held for `base`.
-#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, Eq, ToSchema)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, ToSchema)]
 #[schema(as = Frame)]
 pub struct FrameResponse {
     /// This frame's number: 1 for the session's first, then one more each frame.
@@ -349,6 +390,11 @@ pub struct FrameResponse {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(nullable = false)]
     pub users_visible: Option<Vec<String>>,
+    /// Only on a WebSocket opened with `stats=true`: what the frame's cull
+    /// cost, for clients that show it (the web viewer's panel).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub stats: Option<Stats>,
 }
 
 impl FrameResponse {

@@ -9,6 +9,8 @@
 //! - [`error`]: the error body and its stable codes.
 //! - [`xpvs`]: the `application/x-pvs` binary encoding of id sets and
 //!   frames, specified in `proto/wire-format.md`.
+//! - [`mesh`]: the `application/x-pvs-mesh` encoding of objects'
+//!   triangles, specified in `proto/mesh-format.md`.
 //! - [`delta`]: frame deltas (`diff`) and the encoded id sets a session
 //!   keeps (`IdSet`).
 //! - [`openapi`]: the OpenAPI document, generated from the types above;
@@ -17,5 +19,6 @@
 pub mod delta;
 pub mod error;
 pub mod json;
+pub mod mesh;
 pub mod openapi;
 pub mod xpvs;

@@ -7,7 +7,7 @@
 //! also keep their last frames in this form ([`crate::delta::IdSet`]), a
 //! quarter of the memory of `u32`s or less.
 
-use crate::json::FrameResponse as Frame;
+use crate::json::{FrameResponse as Frame, Stats};
 
 /// The media type.
 pub const CONTENT_TYPE: &str = "application/x-pvs";
@@ -19,6 +19,7 @@ pub const KIND_FRAME: u8 = b'F';
 
 const FLAG_BASE: u8 = 1;
 const FLAG_USERS: u8 = 2;
+const FLAG_STATS: u8 = 4;
 
 /// Why bytes are not a message.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -50,7 +51,7 @@ impl std::fmt::Display for DecodeError {
 impl std::error::Error for DecodeError {}
 
 /// A decoded message.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Message {
     /// The ids of a stateless answer.
     Visible(Vec<u32>),
@@ -98,6 +99,9 @@ pub fn encode_frame(f: &Frame) -> Vec<u8> {
     if f.users_visible.is_some() {
         flags |= FLAG_USERS;
     }
+    if f.stats.is_some() {
+        flags |= FLAG_STATS;
+    }
     out.push(flags);
     put_varint(&mut out, f.frame);
     if let Some(b) = f.base {
@@ -108,11 +112,30 @@ pub fn encode_frame(f: &Frame) -> Vec<u8> {
     if let Some(users) = &f.users_visible {
         put_varint(&mut out, users.len() as u64);
         for u in users {
-            put_varint(&mut out, u.len() as u64);
-            out.extend_from_slice(u.as_bytes());
+            put_string(&mut out, u);
         }
     }
+    if let Some(s) = &f.stats {
+        put_string(&mut out, &s.method);
+        out.extend_from_slice(&s.cull_us.to_le_bytes());
+        put_varint(&mut out, s.nodes_tested);
+        match s.in_frustum {
+            None => out.push(0),
+            Some(n) => {
+                out.push(1);
+                put_varint(&mut out, n);
+            }
+        }
+        put_varint(&mut out, s.visible);
+        put_string(&mut out, s.fallback.as_deref().unwrap_or(""));
+        put_string(&mut out, s.fallback_reason.as_deref().unwrap_or(""));
+    }
     out
+}
+
+fn put_string(out: &mut Vec<u8>, s: &str) {
+    put_varint(out, s.len() as u64);
+    out.extend_from_slice(s.as_bytes());
 }
 
 /// Reads values off a byte slice.
@@ -192,6 +215,43 @@ impl Reader<'_> {
     }
 }
 
+impl Reader<'_> {
+    fn f64(&mut self) -> Result<f64, DecodeError> {
+        let end = self.at + 8;
+        let bytes = self
+            .bytes
+            .get(self.at..end)
+            .ok_or(DecodeError::Truncated(self.bytes.len()))?;
+        self.at = end;
+        Ok(f64::from_le_bytes(bytes.try_into().expect("8 bytes")))
+    }
+
+    fn stats(&mut self) -> Result<Stats, DecodeError> {
+        let method = self.string()?;
+        let cull_us = self.f64()?;
+        let nodes_tested = self.varint()?;
+        let at = self.at;
+        let in_frustum = match self.byte()? {
+            0 => None,
+            1 => Some(self.varint()?),
+            _ => return Err(DecodeError::Unknown(at)),
+        };
+        let visible = self.varint()?;
+        let nonempty = |s: String| (!s.is_empty()).then_some(s);
+        let fallback = nonempty(self.string()?);
+        let fallback_reason = nonempty(self.string()?);
+        Ok(Stats {
+            method,
+            cull_us,
+            nodes_tested,
+            in_frustum,
+            visible,
+            fallback,
+            fallback_reason,
+        })
+    }
+}
+
 /// Decodes one whole message.
 pub fn decode(bytes: &[u8]) -> Result<Message, DecodeError> {
     let mut r = Reader { bytes, at: 0 };
@@ -199,7 +259,7 @@ pub fn decode(bytes: &[u8]) -> Result<Message, DecodeError> {
         KIND_VISIBLE => Message::Visible(r.ids()?),
         KIND_FRAME => {
             let flags = r.byte()?;
-            if flags & !(FLAG_BASE | FLAG_USERS) != 0 {
+            if flags & !(FLAG_BASE | FLAG_USERS | FLAG_STATS) != 0 {
                 return Err(DecodeError::Unknown(1));
             }
             let frame = r.varint()?;
@@ -222,12 +282,18 @@ pub fn decode(bytes: &[u8]) -> Result<Message, DecodeError> {
             } else {
                 None
             };
+            let stats = if flags & FLAG_STATS != 0 {
+                Some(r.stats()?)
+            } else {
+                None
+            };
             Message::Frame(Frame {
                 frame,
                 base,
                 added,
                 removed,
                 users_visible,
+                stats,
             })
         }
         _ => return Err(DecodeError::Unknown(0)),
@@ -261,6 +327,7 @@ mod tests {
             added: vec![5],
             removed: vec![3, 4],
             users_visible: None,
+            stats: None,
         };
         assert_eq!(
             encode_frame(&f),
@@ -272,6 +339,7 @@ mod tests {
             added: vec![],
             removed: vec![],
             users_visible: Some(vec!["ab".into()]),
+            stats: None,
         };
         assert_eq!(
             encode_frame(&w),
@@ -292,6 +360,15 @@ mod tests {
             added: vec![u32::MAX],
             removed: vec![0],
             users_visible: Some(vec!["é".into(), String::new()]),
+            stats: Some(Stats {
+                method: "raster".into(),
+                cull_us: 0.1 + 0.2,
+                nodes_tested: u64::MAX,
+                in_frustum: Some(0),
+                visible: 1,
+                fallback: Some("frustum".into()),
+                fallback_reason: Some("the device was lost".into()),
+            }),
         };
         assert_eq!(decode(&encode_frame(&f)), Ok(Message::Frame(f.clone())));
         let full = encode_frame(&f);
@@ -308,6 +385,17 @@ mod tests {
         ));
         assert!(decode(&[b'V', 0xFF, 0xFF, 0xFF, 0xFF, 0x0F]).is_err());
         assert_eq!(decode(b"X"), Err(DecodeError::Unknown(0)));
-        assert_eq!(decode(&[b'F', 4]), Err(DecodeError::Unknown(1)));
+        assert_eq!(decode(&[b'F', 8]), Err(DecodeError::Unknown(1)));
+        // Stats without a count in the frustum, and no fallback.
+        let plain = Frame {
+            stats: Some(Stats {
+                in_frustum: None,
+                fallback: None,
+                fallback_reason: None,
+                ..f.stats.clone().unwrap()
+            }),
+            ..f
+        };
+        assert_eq!(decode(&encode_frame(&plain)), Ok(Message::Frame(plain)));
     }
 }

@@ -20,7 +20,7 @@ use std::time::Instant;
 
 pub use rank::{RankParams, rank, rank_cached};
 pub use report::{EvalReport, MethodReport, write_svg};
-pub use walk::{WalkError, WalkKind, WalkParams, walk};
+pub use walk::{WalkError, WalkKind, WalkParams, resample, walk};
 
 use crate::cull::dispatch::cull_here;
 use crate::cull::frustum::FrustumCulling;

@@ -148,6 +148,42 @@ pub fn walk(scene: &Scene, p: &WalkParams) -> Result<Vec<Camera>, WalkError> {
         .collect())
 }
 
+/// `frames` cameras `step` apart along the path `cameras` trace (a client
+/// replaying a walk at its own speed: `step` = speed / frame rate). Each
+/// looks along the walk's camera it lies behind; past the path's end the
+/// last camera repeats. The path's own steps are 0.5–2 m.
+pub fn resample(cameras: &[Camera], step: f64, frames: usize) -> Vec<Camera> {
+    let Some(&last) = cameras.last() else {
+        return Vec::new();
+    };
+    let mut out = Vec::with_capacity(frames);
+    // Distance along the path at the current segment's start.
+    let (mut seg, mut at) = (0, 0.0);
+    for i in 0..frames {
+        let want = step * i as f64;
+        while seg + 1 < cameras.len() {
+            let len = cameras[seg].eye.distance(cameras[seg + 1].eye);
+            if at + len > want {
+                break;
+            }
+            at += len;
+            seg += 1;
+        }
+        if seg + 1 >= cameras.len() {
+            out.push(last);
+            continue;
+        }
+        let (a, b) = (&cameras[seg], &cameras[seg + 1]);
+        let len = a.eye.distance(b.eye);
+        let t = if len > 0.0 { (want - at) / len } else { 0.0 };
+        out.push(Camera {
+            eye: a.eye.lerp(b.eye, t),
+            ..*a
+        });
+    }
+    out
+}
+
 fn orbit(lo: DVec3, hi: DVec3, frames: usize, rng: &mut ChaCha8Rng) -> Vec<(DVec3, DVec3)> {
     let center = (lo + hi) * 0.5;
     let radius = (hi - lo).length() * 0.5;
@@ -612,4 +648,39 @@ fn distance_transform(blocked: &[bool], nx: usize, nz: usize, cell: f64) -> Vec<
             (d[c] as f64 / 3.0 * cell).min(edge)
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resampling_keeps_even_steps_along_the_path() {
+        let at = |x: f64, z: f64| Camera {
+            eye: DVec3::new(x, 1.7, z),
+            forward: DVec3::X,
+            ..Camera::default()
+        };
+        // An L: 2 m along x, a repeat (a blocked step), then 2 m along z.
+        let path = [at(0.0, 0.0), at(2.0, 0.0), at(2.0, 0.0), at(2.0, 2.0)];
+        let out = resample(&path, 0.5, 11);
+        let eyes: Vec<(f64, f64)> = out.iter().map(|c| (c.eye.x, c.eye.z)).collect();
+        assert_eq!(
+            eyes,
+            [
+                (0.0, 0.0),
+                (0.5, 0.0),
+                (1.0, 0.0),
+                (1.5, 0.0),
+                (2.0, 0.0),
+                (2.0, 0.5),
+                (2.0, 1.0),
+                (2.0, 1.5),
+                (2.0, 2.0),
+                (2.0, 2.0),
+                (2.0, 2.0),
+            ]
+        );
+        assert!(resample(&[], 1.0, 3).is_empty());
+    }
 }

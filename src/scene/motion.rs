@@ -50,6 +50,9 @@ pub struct Motion {
     movers: Vec<Mover>,
     /// Current boxes, scene-local, one per mover.
     current: RwLock<Vec<Aabb>>,
+    /// Per mover, what carries its loaded triangles (world) to where it is
+    /// now: identity until it moves. Only clients that draw it read this.
+    carried: RwLock<Vec<DMat4>>,
     /// How many moves there have been: a method that keeps its own
     /// structure of the movers rebuilds it when this changes.
     version: AtomicU64,
@@ -60,6 +63,12 @@ impl Clone for Motion {
         Motion {
             movers: self.movers.clone(),
             current: RwLock::new(self.boxes()),
+            carried: RwLock::new(
+                self.carried
+                    .read()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .clone(),
+            ),
             version: AtomicU64::new(self.version()),
         }
     }
@@ -70,6 +79,7 @@ impl Motion {
     /// ids, boxes scene-local) around `origin`.
     pub(crate) fn new(movers: Vec<(u32, DMat4, Aabb)>, origin: DVec3) -> Motion {
         let current = movers.iter().map(|m| m.2).collect();
+        let carried = vec![DMat4::IDENTITY; movers.len()];
         let movers = movers
             .into_iter()
             .map(|(id, loaded, b)| Mover {
@@ -81,6 +91,7 @@ impl Motion {
         Motion {
             movers,
             current: RwLock::new(current),
+            carried: RwLock::new(carried),
             version: AtomicU64::new(0),
         }
     }
@@ -122,6 +133,13 @@ impl Motion {
     pub fn bounds_of(&self, id: u32) -> Option<Aabb> {
         let i = self.movers.binary_search_by_key(&id, |m| m.id).ok()?;
         Some(self.current.read().unwrap_or_else(|p| p.into_inner())[i])
+    }
+
+    /// What carries movable object `id`'s loaded triangles (world
+    /// coordinates) to where it is now; `None` when it is not movable.
+    pub fn carry_of(&self, id: u32) -> Option<DMat4> {
+        let i = self.movers.binary_search_by_key(&id, |m| m.id).ok()?;
+        Some(self.carried.read().unwrap_or_else(|p| p.into_inner())[i])
     }
 
     /// Places movable object `id` at world transform `to` (what its node's
@@ -171,6 +189,7 @@ impl Motion {
                 "moves the object beyond f32's range".into(),
             ));
         }
+        self.carried.write().unwrap_or_else(|p| p.into_inner())[i] = carry;
         self.current.write().unwrap_or_else(|p| p.into_inner())[i] = local;
         self.version.fetch_add(1, Ordering::AcqRel);
         Ok(local)
@@ -191,6 +210,13 @@ mod tests {
         assert_eq!(moved.min.as_dvec3(), DVec3::new(-6.0, 1.0, -1.0));
         assert_eq!(moved.max.as_dvec3(), DVec3::new(-4.0, 3.0, 1.0));
         assert_eq!(m.bounds_of(3), Some(moved));
+        assert_eq!(
+            m.carry_of(3)
+                .unwrap()
+                .transform_point3(DVec3::new(10.0, 0.0, 10.0)),
+            DVec3::new(-5.0, 1.0, 0.0)
+        );
+        assert_eq!(m.carry_of(2), None);
         assert_eq!(m.place(2, to, DVec3::ZERO, 10), Err(MoveError::Static(2)));
         assert_eq!(
             m.place(10, to, DVec3::ZERO, 10),

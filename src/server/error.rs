@@ -122,6 +122,9 @@ pub enum ApiError {
         /// Seconds to wait (the `Retry-After` header).
         retry_after_s: u64,
     },
+    /// The scene has no walk of the kind asked.
+    #[error(transparent)]
+    Walk(#[from] crate::eval::WalkError),
     /// The server has as many connections as it allows.
     #[error("the server has {max} connections open, its limit; retry after 1 s")]
     Overloaded {
@@ -221,6 +224,7 @@ impl ApiError {
             ApiError::BodyTimeout { .. } => (StatusCode::REQUEST_TIMEOUT, ErrorCode::BodyTimeout),
             ApiError::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, ErrorCode::RateLimited),
             ApiError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::Overloaded),
+            ApiError::Walk(_) => (StatusCode::UNPROCESSABLE_ENTITY, ErrorCode::NoWalk),
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Internal),
         }
     }

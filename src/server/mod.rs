@@ -16,11 +16,14 @@ mod error;
 mod extract;
 mod limit;
 mod listener;
+mod mesh;
 mod metrics;
 mod routes;
 pub mod session;
 mod state;
 pub mod tls;
+mod viewer;
+mod walk;
 pub mod walkthrough;
 pub mod wire;
 pub mod ws;
@@ -71,6 +74,9 @@ fn routes() -> Routes {
         router: Router::new(),
         table: Vec::new(),
     }
+    .add(Method::GET, "/", viewer::page)
+    .add(Method::GET, "/viewer", viewer::page)
+    .add(Method::GET, "/viewer/{file}", viewer::asset)
     .add(Method::GET, "/healthz", routes::healthz)
     .add(Method::GET, "/scenes", routes::scenes)
     .add(Method::GET, "/scenes/{id}/objects", routes::objects)
@@ -79,6 +85,13 @@ fn routes() -> Routes {
         "/scenes/{id}/objects/{oid}",
         routes::move_object,
     )
+    .add(
+        Method::GET,
+        "/scenes/{id}/objects/{oid}/mesh",
+        mesh::object_mesh,
+    )
+    .add(Method::POST, "/scenes/{id}/meshes", mesh::meshes)
+    .add(Method::GET, "/scenes/{id}/walk", walk::scene_walk)
     .add(Method::POST, "/scenes/{id}/visible", routes::visible)
     .add(Method::POST, "/sessions", routes::create_session)
     .add(Method::POST, "/sessions/{sid}/frames", routes::frames)

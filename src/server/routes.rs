@@ -252,12 +252,14 @@ pub async fn create_session(
     ))
 }
 
-/// Answers one frame of session `sid` from a view body: shared by
-/// `POST /sessions/{sid}/frames` and the WebSocket.
+/// Answers one frame of session `sid` from a view body (`with_stats`: the
+/// cull's stats in the frame): shared by `POST /sessions/{sid}/frames` and
+/// the WebSocket.
 pub async fn answer_frame(
     state: &AppState,
     sid: &str,
     body: &[u8],
+    with_stats: bool,
 ) -> Result<FrameResponse, ApiError> {
     let session = on_current_scene(state, state.sessions().get(sid)?).await?;
     let req: ViewRequest = parse(body, state.limits().json)?;
@@ -274,7 +276,11 @@ pub async fn answer_frame(
     state
         .metrics()
         .observe_cull(&session.scene.scene().id, &answered.stats);
-    Ok(answered.frame)
+    let mut frame = answered.frame;
+    if with_stats {
+        frame.stats = Some(answered.stats.into());
+    }
+    Ok(frame)
 }
 
 /// The session, moved to its scene's current version if a reload
@@ -299,7 +305,7 @@ pub async fn frames(
     headers: HeaderMap,
     RawBody(body): RawBody,
 ) -> Result<Response, ApiError> {
-    let frame = answer_frame(&state, &sid, &body).await?;
+    let frame = answer_frame(&state, &sid, &body, false).await?;
     Ok(if wants_binary(&headers) {
         binary_body(binary::encode_frame(&frame))
     } else {

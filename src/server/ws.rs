@@ -3,7 +3,9 @@
 //! The client sends views as JSON text messages (the body of
 //! `POST /sessions/{sid}/frames`); the server answers each, in order, with
 //! the frame as JSON text, or as an `application/x-pvs` binary message when
-//! the upgrade asked for it (`?encoding=x-pvs` or that `Accept`). A bad
+//! the upgrade asked for it (`?encoding=x-pvs` or that `Accept`); with
+//! `?stats=true` each frame carries its cull's stats (the web viewer shows
+//! them). A bad
 //! view gets an error message (`{"error": ...}`) and the socket stays open;
 //! a session that ends (deleted, expired) gets its error and a close.
 //!
@@ -42,6 +44,17 @@ use super::state::AppState;
 pub struct WsQuery {
     /// `json` (default) or `x-pvs`.
     encoding: Option<String>,
+    /// Whether frames carry their cull's stats (default false).
+    stats: Option<bool>,
+}
+
+/// How a socket's answers are written.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Encoding {
+    /// As `application/x-pvs` binary messages, else JSON text.
+    pub binary: bool,
+    /// With each frame's stats.
+    pub stats: bool,
 }
 
 /// The upgrade: checks the session first, so a dead one is a plain 404/410.
@@ -66,6 +79,10 @@ pub async fn upgrade(
             )));
         }
     };
+    let encoding = Encoding {
+        binary,
+        stats: query.stats.unwrap_or(false),
+    };
     let limit = state.limits().body_bytes;
     Ok(ws
         .max_message_size(limit)
@@ -76,7 +93,7 @@ pub async fn upgrade(
             // shutdown waits for it.
             tasks.track_future(async move {
                 let _slot = slot;
-                serve(state, sid, socket, binary).await;
+                serve(state, sid, socket, encoding).await;
             })
         }))
 }
@@ -95,14 +112,14 @@ pub enum Reply {
 }
 
 /// The reply to one message on session `sid`'s socket: a view (JSON text)
-/// gets its frame (`binary`: as `x-pvs`), anything else a named error.
+/// gets its frame (written as `encoding` says), anything else a named error.
 /// Messages over `rate`, when there is one, are refused without being
 /// read. The socket's loop and the fuzzer both go through here.
 pub async fn reply(
     state: &AppState,
     sid: &str,
     message: Message,
-    binary: bool,
+    encoding: Encoding,
     rate: Option<&MessageRate>,
 ) -> Reply {
     let body = match message {
@@ -119,8 +136,10 @@ pub async fn reply(
         state.metrics().refused(Refusal::WebSocketRate);
         return Reply::Send(error_message(&e));
     }
-    match answer_frame(state, sid, body.as_bytes()).await {
-        Ok(frame) if binary => Reply::Send(Message::Binary(binary::encode_frame(&frame).into())),
+    match answer_frame(state, sid, body.as_bytes(), encoding.stats).await {
+        Ok(frame) if encoding.binary => {
+            Reply::Send(Message::Binary(binary::encode_frame(&frame).into()))
+        }
         Ok(frame) => Reply::Send(Message::Text(
             String::from_utf8(frame.to_json())
                 .expect("JSON is UTF-8")
@@ -143,7 +162,7 @@ pub async fn reply(
 
 /// Answers views until the client closes, the session ends, or the server
 /// shuts down (a close frame `1001 going away`).
-async fn serve(state: AppState, sid: String, mut socket: WebSocket, binary: bool) {
+async fn serve(state: AppState, sid: String, mut socket: WebSocket, encoding: Encoding) {
     state.metrics().websocket(1);
     let rate = state.limits().websocket_rate.map(MessageRate::new);
     let shutdown = state.lifecycle().shutdown.clone();
@@ -181,7 +200,7 @@ async fn serve(state: AppState, sid: String, mut socket: WebSocket, binary: bool
             }
             None => break,
         };
-        let sent = match reply(&state, &sid, message, binary, rate.as_ref()).await {
+        let sent = match reply(&state, &sid, message, encoding, rate.as_ref()).await {
             Reply::Send(m) => socket.send(m).await.is_ok(),
             Reply::End(m, close) => {
                 if socket.send(m).await.is_ok() {

@@ -210,6 +210,7 @@ pub mod xpvs {
             added,
             removed,
             users_visible,
+            stats: None,
         }
     }
 }

@@ -1,0 +1,123 @@
+//! The geometry routes: objects' triangles for thin clients that draw only
+//! what is visible (`application/x-pvs-mesh`, `proto/mesh-format.md`).
+//!
+//! - `GET /scenes/{id}/objects/{oid}/mesh`: one object.
+//! - `POST /scenes/{id}/meshes` `{"ids": [...]}`: many in one message, in
+//!   the order asked, for a client catching up with a frame's `added`.
+//!
+//! Answers carry a strong `ETag` (a hash of the bytes) and
+//! `Cache-Control: no-cache`: a cache keeps them but asks again, and a
+//! `GET` with a matching `If-None-Match` gets `304` and no body. The bytes
+//! change when a reload changes the scene file or a movable object moves,
+//! so a client never draws geometry the server no longer culls with.
+
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use pvsd_proto::json::MeshesRequest;
+use pvsd_proto::mesh::{self, MeshRef};
+
+use super::error::ApiError;
+use super::extract::{RawBody, parse};
+use super::state::AppState;
+use crate::scene::{IndexedMesh, MoveError, Scene};
+
+/// `GET /scenes/{id}/objects/{oid}/mesh`.
+pub async fn object_mesh(
+    State(state): State<AppState>,
+    Path((id, oid)): Path<(String, String)>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let methods = state.scene(&id)?;
+    let scene = methods.scene();
+    let oid = object_id(scene, &oid)?;
+    let bytes = encode(scene, &[oid]);
+    let tag = etag(&bytes);
+    let matched = headers
+        .get_all(header::IF_NONE_MATCH)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .any(|t| t.trim() == tag || t.trim() == "*");
+    if matched {
+        return Ok((StatusCode::NOT_MODIFIED, cache_headers(&tag)).into_response());
+    }
+    Ok(answer(bytes, &tag))
+}
+
+/// `POST /scenes/{id}/meshes`.
+pub async fn meshes(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    RawBody(body): RawBody,
+) -> Result<Response, ApiError> {
+    let methods = state.scene(&id)?;
+    let req: MeshesRequest = parse(&body, state.limits().json)?;
+    let scene = methods.scene();
+    for &oid in &req.ids {
+        object_id(scene, &oid.to_string())?;
+    }
+    // A thousand meshes of a big scene take milliseconds to gather: off
+    // the async workers.
+    let bytes = tokio::task::spawn_blocking(move || encode(methods.scene(), &req.ids))
+        .await
+        .map_err(|e| ApiError::Internal(format!("encoding meshes failed: {e}")))?;
+    let tag = etag(&bytes);
+    Ok(answer(bytes, &tag))
+}
+
+/// The object `oid` names in `scene`.
+fn object_id(scene: &Scene, oid: &str) -> Result<u32, ApiError> {
+    oid.parse::<u32>()
+        .ok()
+        .filter(|&i| (i as usize) < scene.objects().len())
+        .ok_or_else(|| ApiError::Move(MoveError::Unknown(oid.to_string())))
+}
+
+/// The message of objects `ids` (each known to `scene`).
+fn encode(scene: &Scene, ids: &[u32]) -> Vec<u8> {
+    let objects = scene.objects();
+    let built: Vec<IndexedMesh> = ids
+        .iter()
+        .map(|&i| IndexedMesh::of(scene, &objects[i as usize]))
+        .collect();
+    let refs: Vec<MeshRef<'_>> = ids
+        .iter()
+        .zip(&built)
+        .map(|(&id, m)| MeshRef {
+            id,
+            movable: objects[id as usize].movable,
+            positions: &m.positions,
+            indices: &m.indices,
+            opaque: m.opaque,
+        })
+        .collect();
+    mesh::encode(scene.origin.to_array(), &refs)
+}
+
+/// A strong entity tag: the bytes' 128-bit hash.
+fn etag(bytes: &[u8]) -> String {
+    format!("\"{:032x}\"", xxhash_rust::xxh3::xxh3_128(bytes))
+}
+
+fn cache_headers(tag: &str) -> [(header::HeaderName, HeaderValue); 2] {
+    [
+        (
+            header::ETAG,
+            HeaderValue::from_str(tag).expect("hex in quotes"),
+        ),
+        (header::CACHE_CONTROL, HeaderValue::from_static("no-cache")),
+    ]
+}
+
+fn answer(bytes: Vec<u8>, tag: &str) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static(mesh::CONTENT_TYPE),
+        )],
+        cache_headers(tag),
+        bytes,
+    )
+        .into_response()
+}

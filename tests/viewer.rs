@@ -1,0 +1,409 @@
+//! The web viewer in a real browser: Debian's headless Chromium (WebGL2 in
+//! software through SwiftShader), driven over WebDriver by chromedriver.
+//!
+//! - The page loads, connects, walks a scripted path and shows its panel's
+//!   numbers, without a console error.
+//! - **Same picture**: at scripted views of the office, the 1k city and
+//!   Sponza, the canvas drawn from the visible set alone is pixel for pixel
+//!   the canvas drawn with every object, for every conservative method each
+//!   scene supports; an answer that drops a visible object fails it.
+//! - Two tabs in one walkthrough see each other's avatars.
+//!
+//! Without chromium and chromedriver the tests say so and pass, unless
+//! `PVSD_REQUIRE_BROWSER` is set (as `.ci/run` does, after installing them).
+
+mod common;
+
+use std::net::TcpListener;
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use common::server::Server;
+use fantoccini::{Client, ClientBuilder};
+use pvsd::cull::Registry;
+use pvsd::scene::Scene;
+use pvsd::server::{AppState, Limits};
+use serde_json::{Value, json};
+
+/// chromedriver, and a browser session through it; both end on drop.
+struct Browser {
+    driver: Child,
+    client: Option<Client>,
+}
+
+impl Browser {
+    /// A headless Chromium of `width` × `height`, or `None` (with the
+    /// reason printed) when this machine has none and none is required.
+    async fn start(test: &str, width: u32, height: u32) -> Option<Browser> {
+        let found = ["chromium", "chromedriver"]
+            .iter()
+            .all(|b| Command::new(b).arg("--version").output().is_ok());
+        if !found {
+            assert!(
+                std::env::var_os("PVSD_REQUIRE_BROWSER").is_none(),
+                "{test}: PVSD_REQUIRE_BROWSER is set, but chromium or chromedriver is missing"
+            );
+            eprintln!(
+                "{test}: skipped, no chromium/chromedriver (`apt-get install chromium \
+                 chromium-driver`; PVSD_REQUIRE_BROWSER=1 makes this a failure)"
+            );
+            return None;
+        }
+        let port = TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let driver = Command::new("chromedriver")
+            .arg(format!("--port={port}"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("chromedriver starts");
+        let caps: serde_json::Map<String, Value> = serde_json::from_value(json!({
+            "browserName": "chrome",
+            "timeouts": { "script": 300_000, "pageLoad": 60_000 },
+            "goog:chromeOptions": {
+                "binary": "/usr/bin/chromium",
+                "args": [
+                    "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
+                    "--enable-unsafe-swiftshader", "--disable-gpu-sandbox",
+                    "--disable-dev-shm-usage", "--hide-scrollbars",
+                    format!("--window-size={width},{height}"),
+                ],
+            },
+        }))
+        .unwrap();
+        let url = format!("http://127.0.0.1:{port}");
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let client = loop {
+            let connector = hyper_util::client::legacy::connect::HttpConnector::new();
+            match ClientBuilder::new(connector)
+                .capabilities(caps.clone())
+                .connect(&url)
+                .await
+            {
+                Ok(c) => break c,
+                Err(e) if Instant::now() < deadline => {
+                    let _ = e;
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+                Err(e) => panic!("{test}: no browser session through chromedriver: {e}"),
+            }
+        };
+        Some(Browser {
+            driver,
+            client: Some(client),
+        })
+    }
+
+    fn client(&self) -> &Client {
+        self.client.as_ref().unwrap()
+    }
+
+    /// Opens the viewer at `query` and waits until it has its first answer.
+    async fn open(&self, server: &Server, query: &str) {
+        self.client()
+            .goto(&server.url(&format!("/viewer?test=1&{query}")))
+            .await
+            .unwrap();
+        let ready = self.run("return await window.pvsd.ready;", json!([])).await;
+        assert_eq!(
+            ready,
+            json!(true),
+            "the page did not start: {}",
+            self.errors().await
+        );
+    }
+
+    /// Runs `body` as an async function in the page (`args` as `args`);
+    /// its value, or a panic with the page's error.
+    async fn run(&self, body: &str, args: Value) -> Value {
+        let script = format!(
+            "const done = arguments[arguments.length - 1]; const args = arguments[0];
+             (async () => {{ {body} }})().then(v => done({{ ok: v === undefined ? null : v }}),
+               e => done({{ err: String(e && e.stack || e) }}));"
+        );
+        let out = self
+            .client()
+            .execute_async(&script, vec![args])
+            .await
+            .unwrap_or_else(|e| panic!("the page's script failed: {e}"));
+        match out.get("err") {
+            Some(e) => panic!("in the page: {}", e.as_str().unwrap_or_default()),
+            None => out["ok"].clone(),
+        }
+    }
+
+    /// The page's uncaught errors and console errors.
+    async fn errors(&self) -> Value {
+        self.client()
+            .execute(
+                "return window.pvsd ? window.pvsd.errors : ['no pvsd'];",
+                vec![],
+            )
+            .await
+            .unwrap()
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        if let Some(c) = self.client.take() {
+            // Ends the browser; chromedriver goes with the kill below.
+            let _ = futures_executor(c.close());
+        }
+        let _ = self.driver.kill();
+        let _ = self.driver.wait();
+    }
+}
+
+/// Runs `f` to completion on a runtime of its own (a drop cannot await).
+fn futures_executor<F: std::future::Future>(f: F) -> F::Output {
+    tokio::task::block_in_place(|| {
+        tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .unwrap()
+            .block_on(f)
+    })
+}
+
+/// A server of `scenes` with the tests' bake folder.
+async fn serve(scenes: Vec<Arc<Scene>>) -> Server {
+    let state = AppState::with_methods(
+        scenes,
+        Limits::default(),
+        &Registry::standard(),
+        &common::test_context(),
+    )
+    .unwrap();
+    Server::start(state).await
+}
+
+/// Scripted views of a scene: cameras of its walk, some looking up or down.
+async fn scripted_views(browser: &Browser, count: usize) -> Vec<Value> {
+    let walk = browser.run("return window.pvsd.walk();", json!([])).await;
+    let views = walk["views"].as_array().expect("the scene has a walk");
+    (0..count)
+        .map(|i| {
+            let v = &views[i * (views.len() - 1) / (count.max(2) - 1)];
+            let f = &v["forward"];
+            let pitch = [0.0, 0.25, -0.2, 0.5][i % 4];
+            json!({
+                "eye": v["eye"],
+                "forward": [f[0].as_f64().unwrap(), pitch, f[2].as_f64().unwrap()],
+            })
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_page_walks_and_shows_its_numbers() {
+    let Some(browser) = Browser::start("the_page_walks", 800, 500).await else {
+        return;
+    };
+    let server = serve(vec![common::city_scene(1000, 7, [0.0; 3])]).await;
+    browser.open(&server, "scene=city&method=horizon").await;
+    // The panel's numbers after a scripted walk of 40 frames.
+    let hud = browser
+        .run(
+            "const views = window.pvsd.walk().views;
+             let h;
+             for (let i = 0; i < 40; i++) h = await window.pvsd.goTo(views[i * 10]);
+             return h;",
+            json!([]),
+        )
+        .await;
+    let n = |k: &str| hud[k].as_f64().unwrap_or_else(|| panic!("{k} in {hud}"));
+    assert!(n("frame") >= 40.0, "{hud}");
+    assert!(n("pvs") > 0.0 && n("pvs") < 1001.0, "{hud}");
+    assert_eq!(n("drawn"), n("pvs"), "draws the visible set: {hud}");
+    assert!(n("held") >= n("pvs"), "{hud}");
+    assert!(n("triangles") > 0.0 && n("bytesFetched") > 0.0, "{hud}");
+    assert!(n("latencyMs") >= 0.0 && n("cullUs") > 0.0, "{hud}");
+    assert_eq!(hud["method"], "horizon");
+    // What a person reads: the panel's cells are filled in.
+    let cells = browser
+        .client()
+        .execute(
+            "return [...document.querySelectorAll('#hud td')].map(td => td.textContent);",
+            vec![],
+        )
+        .await
+        .unwrap();
+    let cells: Vec<String> = serde_json::from_value(cells).unwrap();
+    assert!(cells[0].ends_with("of 1001"), "{cells:?}");
+    assert!(cells[..6].iter().all(|c| c != "–"), "{cells:?}");
+    // The draw modes and the map run without error.
+    browser
+        .run(
+            "await window.pvsd.draw('tinted'); await window.pvsd.draw('xray'); await window.pvsd.draw('visible');",
+            json!([]),
+        )
+        .await;
+    if let Some(path) = std::env::var_os("PVSD_VIEWER_SCREENSHOT") {
+        // The README's picture: the city at a street corner, map and panel.
+        let views = scripted_views(&browser, 4).await;
+        browser
+            .run("await window.pvsd.goTo(args[0]);", json!([views[1]]))
+            .await;
+        std::fs::write(path, browser.client().screenshot().await.unwrap()).unwrap();
+    }
+    assert_eq!(browser.errors().await, json!([]));
+}
+
+/// Every conservative method of the scene gives the same picture as every
+/// object at `views` scripted views; returns the report lines.
+async fn assert_same_picture(browser: &Browser, server: &Server, scene: &str, views: usize) {
+    browser
+        .open(server, &format!("scene={scene}&method=frustum"))
+        .await;
+    let info: Vec<Value> = reqwest::get(server.url("/scenes"))
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let methods: Vec<String> = info.iter().find(|s| s["id"] == scene).unwrap()["methods"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m.as_str().unwrap().to_string())
+        .collect();
+    let views = scripted_views(browser, views).await;
+    for method in &methods {
+        browser
+            .run(
+                "await window.pvsd.open(args[0], args[1]);",
+                json!([scene, method]),
+            )
+            .await;
+        for (i, view) in views.iter().enumerate() {
+            let r = browser
+                .run(
+                    "await window.pvsd.goTo(args[0]); return await window.pvsd.samePicture();",
+                    json!([view]),
+                )
+                .await;
+            eprintln!("{scene} {method} view {i}: {r}");
+            assert_eq!(
+                r["differing"], 0,
+                "{scene}, {method}, view {i}: pixels show objects the answer dropped: {r}"
+            );
+            assert!(
+                r["seen"].as_u64().unwrap() > 0,
+                "{scene} view {i} shows nothing: {r}"
+            );
+        }
+    }
+    assert_eq!(browser.errors().await, json!([]));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_conservative_method_draws_the_same_picture() {
+    let Some(browser) = Browser::start("same_picture", 640, 540).await else {
+        return;
+    };
+    let server = serve(vec![
+        common::office_scene(7, [0.0; 3]),
+        common::city_scene(1000, 7, [0.0; 3]),
+        common::shared_scene("Sponza"),
+    ])
+    .await;
+    for scene in ["office", "city", "Sponza"] {
+        assert_same_picture(&browser, &server, scene, 4).await;
+    }
+
+    // The check can fail: an answer less the object covering the most
+    // pixels, and a method that drops small objects on purpose.
+    browser.open(&server, "scene=city&method=frustum").await;
+    let views = scripted_views(&browser, 4).await;
+    let dropped = browser
+        .run(
+            "await window.pvsd.goTo(args[0]); return await window.pvsd.samePicture({ drop: 1 });",
+            json!([views[0]]),
+        )
+        .await;
+    assert!(dropped["differing"].as_u64().unwrap() > 0, "{dropped}");
+    assert_eq!(dropped["missing"].as_array().unwrap().len(), 1, "{dropped}");
+    browser
+        .run(
+            "await window.pvsd.open('city', 'horizon', 'min_area=400');",
+            json!([]),
+        )
+        .await;
+    let mut differing = 0;
+    for view in &views {
+        let r = browser
+            .run(
+                "await window.pvsd.goTo(args[0]); return await window.pvsd.samePicture();",
+                json!([view]),
+            )
+            .await;
+        differing += r["differing"].as_u64().unwrap();
+    }
+    assert!(
+        differing > 0,
+        "horizon:min_area=400 drops small visible objects, and the pictures should show it"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_tabs_in_a_walkthrough_see_each_other() {
+    let Some(browser) = Browser::start("two_tabs", 640, 540).await else {
+        return;
+    };
+    let server = serve(vec![common::city_scene(1000, 7, [0.0; 3])]).await;
+    browser.open(&server, "scene=city&method=horizon").await;
+    let first = browser.client().window().await.unwrap();
+    let wid = browser
+        .run("return await window.pvsd.together();", json!([]))
+        .await;
+    let wid = wid.as_str().unwrap().to_string();
+    // The second user stands in the street; the first 12 m ahead of it,
+    // facing it.
+    let views = scripted_views(&browser, 4).await;
+    let at = &views[0];
+    let f: Vec<f64> = serde_json::from_value(at["forward"].clone()).unwrap();
+    let e: Vec<f64> = serde_json::from_value(at["eye"].clone()).unwrap();
+    let ahead = json!({
+        "eye": [e[0] + f[0] * 12.0, e[1], e[2] + f[2] * 12.0],
+        "forward": [-f[0], 0.0, -f[2]],
+    });
+    let behind = json!({ "eye": e, "forward": [f[0], 0.0, f[2]] });
+    browser
+        .run("await window.pvsd.goTo(args[0]);", json!([ahead]))
+        .await;
+    let second = browser.client().new_window(true).await.unwrap();
+    browser
+        .client()
+        .switch_to_window(second.handle)
+        .await
+        .unwrap();
+    browser
+        .open(&server, &format!("scene=city&walkthrough={wid}"))
+        .await;
+    let seen = browser
+        .run(
+            "let h = await window.pvsd.goTo(args[0]);
+             for (let i = 0; i < 100 && h.avatars.length === 0; i++) {
+               await new Promise(r => setTimeout(r, 50));
+               h = window.pvsd.hud();
+             }
+             return h;",
+            json!([behind]),
+        )
+        .await;
+    assert_eq!(seen["usersVisible"].as_array().unwrap().len(), 1, "{seen}");
+    assert_eq!(seen["avatars"], seen["usersVisible"], "{seen}");
+    assert_eq!(browser.errors().await, json!([]));
+    // Back in the first tab, facing the second user: it is seen too.
+    browser.client().switch_to_window(first).await.unwrap();
+    let h = browser
+        .run("return await window.pvsd.goTo(args[0]);", json!([ahead]))
+        .await;
+    assert_eq!(h["usersVisible"].as_array().unwrap().len(), 1, "{h}");
+    assert_eq!(browser.errors().await, json!([]));
+}
