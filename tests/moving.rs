@@ -426,3 +426,43 @@ async fn a_fallback_answers_the_movers_of_a_method_that_culls_them_itself() {
         "{v}"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_moved_objects_mesh_is_drawn_where_it_is_now() {
+    let state = AppState::new(vec![yard()], Limits::default())
+        .unwrap()
+        .with_admin_token(Some(TOKEN.into()));
+    let s = Server::start(state).await;
+    let c = reqwest::Client::new();
+    let mesh = |oid: u32| {
+        let (c, url) = (
+            c.clone(),
+            s.url(&format!("/scenes/yard/objects/{oid}/mesh")),
+        );
+        async move {
+            let res = c.get(url).send().await.unwrap();
+            let tag = res.headers()["etag"].to_str().unwrap().to_string();
+            let m = pvsd_proto::mesh::decode(&res.bytes().await.unwrap()).unwrap();
+            let o = DVec3::from_array(m.origin);
+            let low = m.meshes[0]
+                .positions
+                .iter()
+                .map(|p| o + Vec3::from_array(*p).as_dvec3())
+                .fold(DVec3::INFINITY, DVec3::min);
+            (tag, m.meshes[0].movable, low)
+        }
+    };
+    let (tag, movable, low) = mesh(BOX).await;
+    assert!(movable);
+    assert_eq!(low, DVec3::new(19.5, 0.0, 29.5));
+    let (_, wall_movable, _) = mesh(WALL).await;
+    assert!(!wall_movable);
+    let (status, _) = put(&c, &s, "2", Some(TOKEN), json!({"translation": [10, 2, 5]})).await;
+    assert_eq!(status, 200);
+    let (moved_tag, _, moved_low) = mesh(BOX).await;
+    assert_eq!(moved_low, DVec3::new(9.5, 2.0, 4.5));
+    assert_ne!(
+        moved_tag, tag,
+        "new bytes, new tag: a cache asks again and gets them"
+    );
+}

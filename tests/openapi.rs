@@ -176,7 +176,10 @@ async fn every_documented_operation_is_served_as_documented() {
         for (method, op) in item.as_object().unwrap() {
             operations += 1;
             // Each operation on a session or walkthrough gets a fresh one.
-            let mut uri = path.replace("{id}", "city").replace("{oid}", "0");
+            let mut uri = path
+                .replace("{id}", "city")
+                .replace("{oid}", "0")
+                .replace("{file}", "viewer.js");
             if uri.contains("{sid}") {
                 uri = uri.replace("{sid}", &created(&state, "/sessions", "session").await);
             }

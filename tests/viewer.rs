@@ -14,6 +14,7 @@
 
 mod common;
 
+use std::collections::BTreeSet;
 use std::net::TcpListener;
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
@@ -244,21 +245,120 @@ async fn the_page_walks_and_shows_its_numbers() {
         )
         .await;
     if let Some(path) = std::env::var_os("PVSD_VIEWER_SCREENSHOT") {
-        // The README's picture: the city at a street corner, map and panel.
+        // The README's picture: the city from its street walk, with the
+        // panel and the map.
+        browser.client().set_window_size(1280, 900).await.unwrap();
         let views = scripted_views(&browser, 4).await;
         browser
-            .run("await window.pvsd.goTo(args[0]);", json!([views[1]]))
+            .run(
+                "await new Promise(r => setTimeout(r, 300)); await window.pvsd.goTo(args[0]);",
+                json!([views[1]]),
+            )
             .await;
         std::fs::write(path, browser.client().screenshot().await.unwrap()).unwrap();
     }
     assert_eq!(browser.errors().await, json!([]));
 }
 
-/// Every conservative method of the scene gives the same picture as every
-/// object at `views` scripted views; returns the report lines.
-async fn assert_same_picture(browser: &Browser, server: &Server, scene: &str, views: usize) {
+/// The bit of a pixel of the viewer's id pictures set for see-through triangles.
+const SEE_THROUGH: u32 = 1 << 23;
+
+/// How the browser's picture of every object (ids + 1 per pixel, bottom row
+/// first, base64) compares with pvsd's ground truth of the view it sent, at
+/// the pixels where the browser shows an opaque surface or nothing: the
+/// share showing the same object, and the objects each shows that the
+/// other does not show anywhere.
+fn against_truth(scene: &Scene, r: &Value) -> Agreement {
+    use base64::Engine as _;
+    let v = &r["view"];
+    let get = |k: &str| -> [f64; 3] { serde_json::from_value(v[k].clone()).unwrap() };
+    let camera = pvsd::geom::Camera {
+        eye: get("eye").into(),
+        forward: get("forward").into(),
+        up: get("up").into(),
+        fov_y_deg: v["fov_y_deg"].as_f64().unwrap(),
+        aspect: v["aspect"].as_f64().unwrap(),
+        near: v["near"].as_f64().unwrap(),
+        far: v["far"].as_f64().unwrap(),
+        viewport: serde_json::from_value(v["viewport"].clone()).unwrap(),
+    };
+    let truth = pvsd::truth::Truth::render(scene, &camera).unwrap();
+    let bytes = base64::engine::general_purpose::STANDARD
+        .decode(r["ids"].as_str().unwrap())
+        .unwrap();
+    let (w, h) = (truth.width(), truth.height());
+    assert_eq!(
+        bytes.len() as u32,
+        w * h * 4,
+        "the browser drew the viewport it sent"
+    );
+    let (mut same, mut browser_seen, mut truth_seen) = (0, BTreeSet::new(), BTreeSet::new());
+    let (mut compared, mut edge) = (w * h, 0);
+    for y in 0..h {
+        for x in 0..w {
+            let at = (((h - 1 - y) * w + x) * 4) as usize;
+            let id = u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+            if id & SEE_THROUGH != 0 {
+                // Truth's winners are opaque; see-through pixels are set
+                // beside nothing.
+                compared -= 1;
+                continue;
+            }
+            let browser = id.checked_sub(1).unwrap_or(pvsd::truth::NO_OBJECT);
+            let winner = truth.winner_at(x, y);
+            if browser == winner {
+                same += 1;
+            } else {
+                // Where they differ: at an edge of truth's picture (a
+                // neighbour shows another object), or inside a surface.
+                let neighbours = [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)];
+                edge += u32::from(neighbours.iter().any(|&(dx, dy)| {
+                    let (nx, ny) = (i64::from(x) + dx, i64::from(y) + dy);
+                    (0..i64::from(w)).contains(&nx)
+                        && (0..i64::from(h)).contains(&ny)
+                        && truth.winner_at(nx as u32, ny as u32) != winner
+                }));
+            }
+            let truth = winner;
+            browser_seen.insert(browser);
+            truth_seen.insert(truth);
+        }
+    }
+    let only = |a: &BTreeSet<u32>, b: &BTreeSet<u32>| {
+        a.difference(b)
+            .copied()
+            .filter(|&i| i != pvsd::truth::NO_OBJECT)
+            .collect::<Vec<u32>>()
+    };
+    Agreement {
+        same: f64::from(same) / f64::from(compared),
+        at_edges: f64::from(edge) / f64::from((compared - same).max(1)),
+        browser_only: only(&browser_seen, &truth_seen),
+        truth_only: only(&truth_seen, &browser_seen),
+    }
+}
+
+/// A browser picture beside pvsd's truth ([`against_truth`]).
+#[derive(Debug)]
+struct Agreement {
+    /// Share of the compared pixels showing the same object.
+    same: f64,
+    /// Share of the differing pixels on an edge of truth's picture.
+    at_edges: f64,
+    /// Objects the browser shows at some pixel and truth at none.
+    browser_only: Vec<u32>,
+    /// Objects truth shows at some pixel and the browser at none.
+    truth_only: Vec<u32>,
+}
+
+/// Every conservative method of `scene` gives the same picture as every
+/// object at `views` scripted views. The first method's pictures are also
+/// set beside pvsd's ground truth: the browser must draw the very view the
+/// server culled, or the check would prove nothing.
+async fn assert_same_picture(browser: &Browser, server: &Server, scene: &Scene, views: usize) {
+    let id = scene.id.as_str();
     browser
-        .open(server, &format!("scene={scene}&method=frustum"))
+        .open(server, &format!("scene={id}&method=frustum"))
         .await;
     let info: Vec<Value> = reqwest::get(server.url("/scenes"))
         .await
@@ -266,35 +366,55 @@ async fn assert_same_picture(browser: &Browser, server: &Server, scene: &str, vi
         .json()
         .await
         .unwrap();
-    let methods: Vec<String> = info.iter().find(|s| s["id"] == scene).unwrap()["methods"]
+    let methods: Vec<String> = info.iter().find(|s| s["id"] == id).unwrap()["methods"]
         .as_array()
         .unwrap()
         .iter()
         .map(|m| m.as_str().unwrap().to_string())
         .collect();
     let views = scripted_views(browser, views).await;
-    for method in &methods {
+    for (k, method) in methods.iter().enumerate() {
         browser
             .run(
                 "await window.pvsd.open(args[0], args[1]);",
-                json!([scene, method]),
+                json!([id, method]),
             )
             .await;
         for (i, view) in views.iter().enumerate() {
-            let r = browser
+            let mut r = browser
                 .run(
-                    "await window.pvsd.goTo(args[0]); return await window.pvsd.samePicture();",
-                    json!([view]),
+                    "await window.pvsd.goTo(args[0]);
+                     return await window.pvsd.samePicture({ picture: args[1] });",
+                    json!([view, k == 0]),
                 )
                 .await;
-            eprintln!("{scene} {method} view {i}: {r}");
+            if k == 0 {
+                let a = against_truth(scene, &r);
+                eprintln!(
+                    "{id} view {i}: the browser and pvsd's truth show the same object at \
+                     {:.3}% of pixels, {:.0}% of the others on an edge of truth's picture; \
+                     objects only the browser shows: {:?}, only truth: {:?}",
+                    a.same * 100.0,
+                    a.at_edges * 100.0,
+                    a.browser_only,
+                    a.truth_only
+                );
+                // A camera off by anything (aspect, an axis, the origin)
+                // differs inside surfaces, not only at their edges.
+                assert!(
+                    a.same > 0.99 && a.at_edges > 0.5,
+                    "{id} view {i}: the browser drew another view: {a:?}"
+                );
+                r["ids"] = Value::Null;
+            }
+            eprintln!("{id} {method} view {i}: {r}");
             assert_eq!(
                 r["differing"], 0,
-                "{scene}, {method}, view {i}: pixels show objects the answer dropped: {r}"
+                "{id}, {method}, view {i}: pixels show objects the answer dropped: {r}"
             );
             assert!(
                 r["seen"].as_u64().unwrap() > 0,
-                "{scene} view {i} shows nothing: {r}"
+                "{id} view {i} shows nothing: {r}"
             );
         }
     }
@@ -306,13 +426,13 @@ async fn every_conservative_method_draws_the_same_picture() {
     let Some(browser) = Browser::start("same_picture", 640, 540).await else {
         return;
     };
-    let server = serve(vec![
+    let scenes = vec![
         common::office_scene(7, [0.0; 3]),
         common::city_scene(1000, 7, [0.0; 3]),
         common::shared_scene("Sponza"),
-    ])
-    .await;
-    for scene in ["office", "city", "Sponza"] {
+    ];
+    let server = serve(scenes.clone()).await;
+    for scene in &scenes {
         assert_same_picture(&browser, &server, scene, 4).await;
     }
 
@@ -405,5 +525,76 @@ async fn two_tabs_in_a_walkthrough_see_each_other() {
         .run("return await window.pvsd.goTo(args[0]);", json!([ahead]))
         .await;
     assert_eq!(h["usersVisible"].as_array().unwrap().len(), 1, "{h}");
+    assert_eq!(browser.errors().await, json!([]));
+}
+
+/// The README's figure, in the browser: a 60-second street walk (30
+/// frames a second at 10 m/s) of the scene file `PVSD_VIEWER_WALK_SCENE`
+/// (e.g. `pvsd gen city --buildings 10000 --seed 7`), with `auto`; prints
+/// the geometry bytes the page fetched against the file and every mesh.
+/// A measurement, not a check: `cargo test --release --test viewer --
+/// --ignored --nocapture`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "a measurement; needs PVSD_VIEWER_WALK_SCENE"]
+async fn a_street_walk_fetches_a_small_share_of_the_scene() {
+    let path = std::path::PathBuf::from(
+        std::env::var_os("PVSD_VIEWER_WALK_SCENE").expect("PVSD_VIEWER_WALK_SCENE"),
+    );
+    let Some(browser) = Browser::start("street_walk", 640, 540).await else {
+        return;
+    };
+    let scene = Arc::new(pvsd::scene::load_path(&path).unwrap());
+    let id = scene.id.clone();
+    let server = serve(vec![scene]).await;
+    browser
+        .open(&server, &format!("scene={id}&method=auto"))
+        .await;
+    let walk: Value = reqwest::get(server.url(&format!(
+        "/scenes/{id}/walk?kind=street&frames=1800&step={}",
+        10.0 / 30.0
+    )))
+    .await
+    .unwrap()
+    .json()
+    .await
+    .unwrap();
+    // In runs of 100 frames, each within the script timeout.
+    let mut hud = Value::Null;
+    for run in walk["views"].as_array().unwrap().chunks(100) {
+        hud = browser
+            .run(
+                "let h; for (const v of args) h = await window.pvsd.goTo(v); return h;",
+                json!(run),
+            )
+            .await;
+    }
+    let objects: Vec<Value> = reqwest::get(server.url(&format!("/scenes/{id}/objects")))
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let ids: Vec<usize> = (0..objects.len()).collect();
+    let mut whole = 0;
+    for batch in ids.chunks(1024) {
+        let res = reqwest::Client::new()
+            .post(server.url(&format!("/scenes/{id}/meshes")))
+            .json(&json!({ "ids": batch }))
+            .send()
+            .await
+            .unwrap();
+        whole += res.bytes().await.unwrap().len();
+    }
+    let file = std::fs::metadata(&path).unwrap().len() as f64;
+    let fetched = hud["bytesFetched"].as_f64().unwrap();
+    println!(
+        "{id}: {} frames, method {}, PVS {} at the end; fetched {fetched} bytes = {:.2}% of the \
+         file ({file} bytes), {:.2}% of every mesh ({whole} bytes)",
+        hud["frame"],
+        hud["method"],
+        hud["pvs"],
+        100.0 * fetched / file,
+        100.0 * fetched / whole as f64
+    );
     assert_eq!(browser.errors().await, json!([]));
 }

@@ -33,14 +33,20 @@ use crate::error::ErrorBody;
             (proto/src/openapi.rs); tests/openapi.rs checks that these paths are exactly the \
             router's routes, sends every operation's example to the router and checks the answer \
             against the schemas here. The binary encoding application/x-pvs is specified in \
-            proto/wire-format.md. Any route may also answer 429 rate_limited (when the server \
+            proto/wire-format.md, application/x-pvs-mesh in proto/mesh-format.md. Any route may also answer 429 rate_limited (when the server \
             limits each client's rate) and 503 overloaded (past its connection cap), both with \
             Retry-After."
     ),
     paths(
+        operations::page,
+        operations::viewer,
+        operations::viewer_asset,
         operations::healthz,
         operations::scenes,
         operations::objects,
+        operations::object_mesh,
+        operations::meshes,
+        operations::scene_walk,
         operations::move_object,
         operations::visible,
         operations::create_session,
@@ -60,6 +66,7 @@ use crate::error::ErrorBody;
         (name = "sessions", description = "A client's temporal cache on the server; frames as deltas"),
         (name = "walkthroughs", description = "Several users in one scene, each an avatar the others see"),
         (name = "operations", description = "Liveness, metrics and scene reload"),
+        (name = "viewer", description = "The web viewer: a thin client in the browser"),
     )
 )]
 pub struct ApiDoc;
@@ -102,19 +109,44 @@ fn error_response(description: &str) -> RefOr<Response> {
 /// An `application/x-pvs` body (`proto/wire-format.md`).
 pub struct XPvs;
 
+/// A binary body, described.
+fn binary(description: &str) -> RefOr<Schema> {
+    ObjectBuilder::new()
+        .schema_type(Type::String)
+        .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
+        .description(Some(description))
+        .into()
+}
+
 impl PartialSchema for XPvs {
     fn schema() -> RefOr<Schema> {
-        ObjectBuilder::new()
-            .schema_type(Type::String)
-            .format(Some(SchemaFormat::KnownFormat(KnownFormat::Binary)))
-            .description(Some(
-                "Sent when the request's Accept names application/x-pvs; proto/wire-format.md",
-            ))
-            .into()
+        binary("Sent when the request's Accept names application/x-pvs; proto/wire-format.md")
     }
 }
 
 impl ToSchema for XPvs {}
+
+/// An `application/x-pvs-mesh` body (`proto/mesh-format.md`).
+pub struct XPvsMesh;
+
+impl PartialSchema for XPvsMesh {
+    fn schema() -> RefOr<Schema> {
+        binary("Objects' triangles; proto/mesh-format.md")
+    }
+}
+
+impl ToSchema for XPvsMesh {}
+
+/// A file of the web viewer (HTML, JavaScript, CSS).
+pub struct Text;
+
+impl PartialSchema for Text {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new().schema_type(Type::String).into()
+    }
+}
+
+impl ToSchema for Text {}
 
 /// The operations, one marker function each, named after the server's
 /// handler: `#[utoipa::path]` reads their attributes, nothing calls them.
@@ -122,12 +154,12 @@ impl ToSchema for XPvs {}
 mod operations {
     use utoipa::{IntoParams, ToSchema};
 
-    use super::{Refused, XPvs};
+    use super::{Refused, Text, XPvs, XPvsMesh};
     use crate::error::ErrorBody;
     use crate::json::{
-        FrameResponse, MoveRequest, ObjectInfo, ReloadReport, SceneInfo, SessionCreated,
-        SessionRequest, UserJoined, ViewRequest, VisibleResponse, WalkthroughCreated,
-        WalkthroughInfo,
+        FrameResponse, MeshesRequest, MoveRequest, ObjectInfo, ReloadReport, SceneInfo,
+        SessionCreated, SessionRequest, UserJoined, ViewRequest, VisibleResponse, WalkResponse,
+        WalkthroughCreated, WalkthroughInfo,
     };
 
     /// `{id}`: a scene.
@@ -212,6 +244,106 @@ mod operations {
         )
     )]
     fn objects() {}
+
+    /// One object's triangles, where it is now (`application/x-pvs-mesh`,
+    /// proto/mesh-format.md), for thin clients that draw only what is
+    /// visible. A strong `ETag` (a hash of the bytes) comes with it and
+    /// `Cache-Control: no-cache`; a matching `If-None-Match` gets 304.
+    #[utoipa::path(
+        get,
+        path = "/scenes/{id}/objects/{oid}/mesh",
+        tag = "scenes",
+        params(
+            SceneId,
+            ObjectId,
+            ("If-None-Match" = Option<String>, Header, nullable = false, description = "An ETag the client holds"),
+        ),
+        responses(
+            (status = 200, description = "The object's mesh", content((XPvsMesh = "application/x-pvs-mesh")),
+                headers(("ETag" = String, description = "Strong: the bytes' hash"))),
+            (status = 304, description = "The client's copy is current"),
+            (status = 404, response = Refused),
+        )
+    )]
+    fn object_mesh() {}
+
+    /// Many objects' triangles in one message, in the order asked (an
+    /// empty list answers the scene's origin alone).
+    #[utoipa::path(
+        post,
+        path = "/scenes/{id}/meshes",
+        tag = "scenes",
+        params(SceneId),
+        request_body(
+            content = MeshesRequest,
+            content_type = "application/json",
+            example = json!({"ids": [0, 1, 2]})
+        ),
+        responses(
+            (status = 200, description = "The meshes", content((XPvsMesh = "application/x-pvs-mesh")),
+                headers(("ETag" = String, description = "Strong: the bytes' hash"))),
+            (status = 400, response = Refused),
+            (status = 404, response = Refused),
+            (status = 413, response = Refused),
+        )
+    )]
+    fn meshes() {}
+
+    /// A path through the scene for clients to replay: the walks `pvsd
+    /// eval --walk` measures on (a street walk at eye height along open
+    /// space, a wandering one, an orbit, unrelated views).
+    #[utoipa::path(
+        get,
+        path = "/scenes/{id}/walk",
+        tag = "scenes",
+        params(
+            SceneId,
+            ("kind" = Option<String>, Query, description = "street (default), random, orbit or views"),
+            ("frames" = Option<u32>, Query, description = "How many views, 1–10000 (default 600)"),
+            ("seed" = Option<u64>, Query, description = "The same seed gives the same walk (default 1)"),
+            ("step" = Option<f64>, Query, description = "Metres between views, (0, 100] (default: the walk's own, 0.5–2 m)"),
+        ),
+        responses(
+            (status = 200, description = "The walk", body = WalkResponse),
+            (status = 400, response = Refused),
+            (status = 404, response = Refused),
+            (status = 422, description = "no_walk: the scene has no walk of this kind (no free space at eye height)", body = ErrorBody),
+        )
+    )]
+    fn scene_walk() {}
+
+    /// The web viewer: walk a scene in the browser, drawing only what the
+    /// server says may be visible.
+    #[utoipa::path(
+        get,
+        path = "/",
+        tag = "viewer",
+        responses((status = 200, description = "The page", content((Text = "text/html"))))
+    )]
+    fn page() {}
+
+    /// The web viewer, with `?scene=`, `method=`, `options=` (`k=32`) and
+    /// `walkthrough=` to start from.
+    #[utoipa::path(
+        get,
+        path = "/viewer",
+        tag = "viewer",
+        responses((status = 200, description = "The page", content((Text = "text/html"))))
+    )]
+    fn viewer() {}
+
+    /// The viewer's files (its scripts, style, and three.js).
+    #[utoipa::path(
+        get,
+        path = "/viewer/{file}",
+        tag = "viewer",
+        params(("file" = String, Path, description = "viewer.js, protocol.js, viewer.css, index.html, three-0.170.0.module.min.js", example = "viewer.js")),
+        responses(
+            (status = 200, description = "The file", content((Text = "text/javascript"), (Text = "text/css"), (Text = "text/html"))),
+            (status = 404, response = Refused),
+        )
+    )]
+    fn viewer_asset() {}
 
     /// Moves an object the scene file marks movable (`extras.movable`):
     /// its new world transform replaces the one it was loaded with, and
@@ -369,6 +501,7 @@ mod operations {
         params(
             SessionId,
             ("encoding" = Option<Encoding>, Query, description = "How frames are sent"),
+            ("stats" = Option<bool>, Query, description = "Whether each frame carries its cull's stats (default false)"),
             ("Accept" = Option<String>, Header, nullable = false, description = ACCEPT),
         ),
         responses(

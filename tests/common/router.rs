@@ -2,7 +2,8 @@
 //! `oneshot`), as axum's examples test their routers.
 
 use axum::body::Body;
-use axum::http::{Request, StatusCode};
+use axum::body::Bytes;
+use axum::http::{HeaderMap, Request, StatusCode};
 use http_body_util::BodyExt;
 use pvsd::server::{AppState, app};
 use serde_json::Value;
@@ -20,7 +21,25 @@ pub async fn call(
     uri: &str,
     body: Option<impl ToString>,
 ) -> (StatusCode, Value) {
-    let req = Request::builder().method(method).uri(uri);
+    let (status, _, bytes) = call_raw(state, method, uri, body, &[]).await;
+    let value = serde_json::from_slice(&bytes)
+        .unwrap_or_else(|_| Value::String(String::from_utf8_lossy(&bytes).into()));
+    (status, value)
+}
+
+/// `method uri` with an optional JSON body and more `headers`; the status,
+/// the headers and the bytes of the answer.
+pub async fn call_raw(
+    state: &AppState,
+    method: &str,
+    uri: &str,
+    body: Option<impl ToString>,
+    headers: &[(&str, &str)],
+) -> (StatusCode, HeaderMap, Bytes) {
+    let mut req = Request::builder().method(method).uri(uri);
+    for (k, v) in headers {
+        req = req.header(*k, *v);
+    }
     let req = match body {
         Some(b) => req
             .header("content-type", "application/json")
@@ -29,9 +48,7 @@ pub async fn call(
     }
     .unwrap();
     let res = app(state.clone()).oneshot(req).await.unwrap();
-    let status = res.status();
+    let (status, headers) = (res.status(), res.headers().clone());
     let bytes = res.into_body().collect().await.unwrap().to_bytes();
-    let value = serde_json::from_slice(&bytes)
-        .unwrap_or_else(|_| Value::String(String::from_utf8_lossy(&bytes).into()));
-    (status, value)
+    (status, headers, bytes)
 }

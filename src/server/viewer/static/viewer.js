@@ -84,6 +84,9 @@ function bytes(n) {
 
 // ---------------------------------------------------------------- geometry
 
+/** The bit of an id picture's pixel that says it shows a see-through triangle. */
+const SEE_THROUGH = 1 << 23;
+
 const PALETTE = [0xc9b79c, 0x9fb4c7, 0xb8c99c, 0xc7a59f, 0xa99fc7, 0xc7c19f, 0x9fc7bd, 0xbfbfbf];
 
 /** One object's drawable: a THREE.Mesh with its normal and id materials. */
@@ -145,19 +148,22 @@ const Materials = {
   },
   // The object's id + 1 as its exact colour (0 is the background): a
   // picture read back says which object every pixel shows. See-through
-  // triangles are drawn solid here, after nothing: the picture is of
-  // what is nearest, which is what an answer must include.
+  // triangles set bit 23 as well and, as transparent, are drawn after every
+  // opaque one without writing depth: a pixel shows the nearest opaque
+  // object, or a see-through one in front of it, in the same order in
+  // every picture.
   id(id) {
     const key = `i${id}`;
     if (!this.cache.has(key)) {
-      const v = id + 1;
-      const m = new THREE.ShaderMaterial({
+      const material = (v, seeThrough) => new THREE.ShaderMaterial({
         uniforms: { color: { value: new THREE.Vector3((v & 255) / 255, ((v >> 8) & 255) / 255, ((v >> 16) & 255) / 255) } },
         vertexShader: 'void main() { gl_Position = projectionMatrix * modelViewMatrix * vec4(position, 1.0); }',
         fragmentShader: 'uniform vec3 color; void main() { gl_FragColor = vec4(color, 1.0); }',
         side: THREE.DoubleSide,
+        transparent: seeThrough,
+        depthWrite: !seeThrough,
       });
-      this.cache.set(key, [m, m]);
+      this.cache.set(key, [material(id + 1, false), material((id + 1) | SEE_THROUGH, true)]);
     }
     return this.cache.get(key);
   },
@@ -889,14 +895,17 @@ window.pvsd = {
    * check fails when an answer drops one). Returns the pixels that differ
    * and the ids they show in the full picture.
    */
-  async samePicture({ drop = 0 } = {}) {
+  async samePicture({ drop = 0, picture = false } = {}) {
     await state.geometry.want(state.objects.map((o) => o.id));
     placeCamera(currentView());
     const all = idPicture(null);
     const set = new Set(state.link.visible);
     if (drop > 0) {
       const counts = new Map();
-      for (const v of all) if (v && set.has(v - 1)) counts.set(v - 1, (counts.get(v - 1) ?? 0) + 1);
+      for (const v of all) {
+        const id = (v & ~SEE_THROUGH) - 1;
+        if (v && set.has(id)) counts.set(id, (counts.get(id) ?? 0) + 1);
+      }
       [...counts].sort((a, b) => b[1] - a[1]).slice(0, drop).forEach(([id]) => set.delete(id));
     }
     const only = idPicture(set);
@@ -904,16 +913,28 @@ window.pvsd = {
     const missing = new Set();
     const seen = new Set();
     for (let i = 0; i < all.length; i++) {
-      if (all[i]) seen.add(all[i] - 1);
+      const id = (all[i] & ~SEE_THROUGH) - 1;
+      if (all[i]) seen.add(id);
       if (all[i] !== only[i]) {
         differing += 1;
-        if (all[i]) missing.add(all[i] - 1);
+        if (all[i]) missing.add(id);
       }
     }
     state.geometry.trim(state.link.visible);
     render();
+    // With `picture`, the full picture's ids too (id + 1 per pixel, bit 23
+    // for see-through, bottom row first, as base64 of little-endian u32s),
+    // to set beside pvsd's own.
+    let ids;
+    if (picture) {
+      const bytes = new Uint8Array(all.buffer);
+      let text = '';
+      for (let i = 0; i < bytes.length; i += 8192) text += String.fromCharCode(...bytes.subarray(i, i + 8192));
+      ids = btoa(text);
+    }
     return { width: renderer.domElement.width, height: renderer.domElement.height, pixels: all.length,
-      differing, missing: [...missing].sort((a, b) => a - b), seen: seen.size, pvs: state.link.visible.size };
+      differing, missing: [...missing].sort((a, b) => a - b), seen: seen.size, pvs: state.link.visible.size, ids,
+      view: currentView() };
   },
   /** Starts a walkthrough of this scene and method, as the button does; resolves with its id. */
   async together() {
