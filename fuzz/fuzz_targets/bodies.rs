@@ -14,8 +14,9 @@ fuzz_target!(|data: &[u8]| {
     let f = fixture();
     let frames = format!("/sessions/{}/frames", f.session);
     let bearer = format!("Bearer {TOKEN}");
-    let (method, path, auth) = match route % 5 {
+    let (method, path, auth) = match route % 6 {
         0 => ("POST", "/scenes/city/visible", None),
+        5 => ("POST", "/scenes/city/meshes", None),
         1 => ("POST", "/sessions", None),
         2 => ("POST", frames.as_str(), None),
         3 => ("POST", "/walkthroughs", None),

@@ -1,7 +1,9 @@
-//! `application/x-pvs` and delta chaining (the proto crate).
-//! Invariants: what decodes encodes back to the same message; a chain of
-//! deltas, each encoded, decoded and applied to what the client holds,
-//! rebuilds every set; an `IdSet` gives back its ids.
+//! `application/x-pvs`, delta chaining and `application/x-pvs-mesh` (the
+//! proto crate). Invariants: what decodes encodes back to the same message
+//! (compared as bytes: a frame's stats may hold a NaN); a chain of deltas,
+//! each encoded, decoded and applied to what the client holds, rebuilds
+//! every set; an `IdSet` gives back its ids; a mesh message that decodes is
+//! exactly the bytes its meshes encode to.
 #![no_main]
 
 use std::collections::BTreeSet;
@@ -10,6 +12,7 @@ use arbitrary::Arbitrary;
 use libfuzzer_sys::fuzz_target;
 use pvsd_proto::delta::{IdSet, diff};
 use pvsd_proto::json::FrameResponse;
+use pvsd_proto::mesh;
 use pvsd_proto::xpvs::{Message, decode, encode_frame, encode_visible};
 
 #[derive(Arbitrary, Debug)]
@@ -18,6 +21,8 @@ enum Input {
     Decode(Vec<u8>),
     /// Visible sets of successive frames.
     Chain(Vec<Vec<u32>>),
+    /// Mesh message bytes off the wire.
+    Mesh(Vec<u8>),
 }
 
 fn encode(m: &Message) -> Vec<u8> {
@@ -30,7 +35,14 @@ fn encode(m: &Message) -> Vec<u8> {
 fuzz_target!(|input: Input| match input {
     Input::Decode(bytes) => {
         if let Ok(m) = decode(&bytes) {
-            assert_eq!(decode(&encode(&m)).as_ref(), Ok(&m));
+            let again = encode(&m);
+            assert_eq!(decode(&again).map(|m| encode(&m)), Ok(again));
+        }
+    }
+    Input::Mesh(bytes) => {
+        if let Ok(m) = mesh::decode(&bytes) {
+            let meshes: Vec<mesh::MeshRef<'_>> = m.meshes.iter().map(mesh::Mesh::as_ref).collect();
+            assert_eq!(mesh::encode(m.origin, &meshes), bytes);
         }
     }
     Input::Chain(sets) => {

@@ -154,7 +154,7 @@ pub fn encode<'a>(origin: [f64; 3], meshes: &[MeshRef<'a>]) -> Vec<u8> {
 /// Why bytes are not a mesh message.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum MeshError {
-    /// Not `PVSM`, or another version.
+    /// Not `PVSM`, another version, or a nonzero reserved word.
     Header,
     /// The bytes end inside the named mesh (by its place in the message).
     Truncated(usize),
@@ -183,7 +183,11 @@ pub fn decode(bytes: &[u8]) -> Result<Meshes, MeshError> {
     let word = |at: usize| -> Option<u32> {
         Some(u32::from_le_bytes(bytes.get(at..at + 4)?.try_into().ok()?))
     };
-    if bytes.len() < HEADER_BYTES || bytes[..4] != MAGIC || word(4) != Some(VERSION) {
+    if bytes.len() < HEADER_BYTES
+        || bytes[..4] != MAGIC
+        || word(4) != Some(VERSION)
+        || word(12) != Some(0)
+    {
         return Err(MeshError::Header);
     }
     let count = word(8).ok_or(MeshError::Header)? as usize;
@@ -328,6 +332,9 @@ mod tests {
         let one = encode([0.0; 3], &[quad(1).as_ref()]);
         let mut bad = one.clone();
         bad[4] = 2;
+        assert_eq!(decode(&bad), Err(MeshError::Header));
+        let mut bad = one.clone();
+        bad[12] = 1; // the reserved word
         assert_eq!(decode(&bad), Err(MeshError::Header));
         let mut bad = one.clone();
         bad[44] |= 8; // an unknown flag

@@ -102,7 +102,8 @@ const MAGIC = 0x4d535650; // "PVSM", little-endian
  */
 export function decodeMeshes(buffer) {
   const view = new DataView(buffer);
-  if (buffer.byteLength < 40 || view.getUint32(0, true) !== MAGIC || view.getUint32(4, true) !== 1) {
+  if (buffer.byteLength < 40 || view.getUint32(0, true) !== MAGIC || view.getUint32(4, true) !== 1
+    || view.getUint32(12, true) !== 0) {
     throw new Error('x-pvs-mesh: not a version 1 message');
   }
   const count = view.getUint32(8, true);
