@@ -107,19 +107,83 @@ async fn fetch_meshes(
     ids: &[u32],
 ) -> anyhow::Result<(Vec<Mesh>, usize)> {
     let (mut out, mut bytes) = (Vec::new(), 0);
-    for batch in ids.chunks(1024) {
-        let body = http
+    // The server's default JSON array limit; a server with a lower one
+    // answers 413, and the batch is halved.
+    let mut size = 1024;
+    let mut rest = ids;
+    while !rest.is_empty() {
+        let batch = &rest[..size.min(rest.len())];
+        let res = http
             .post(format!("{}/scenes/{}/meshes", args.server, args.scene))
             .json(&json!({ "ids": batch }))
             .send()
-            .await?
-            .error_for_status()?
-            .bytes()
             .await?;
+        if res.status() == reqwest::StatusCode::PAYLOAD_TOO_LARGE && size > 1 {
+            size /= 2;
+            continue;
+        }
+        let body = res.error_for_status()?.bytes().await?;
         bytes += body.len();
         out.extend(mesh::decode(&body)?.meshes);
+        rest = &rest[batch.len()..];
     }
     Ok((out, bytes))
+}
+
+type Socket =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// A new session of the scene and method, and its WebSocket.
+async fn open_session(
+    http: &reqwest::Client,
+    args: &Args,
+) -> anyhow::Result<(SessionCreated, Socket)> {
+    let created: SessionCreated = http
+        .post(format!("{}/sessions", args.server))
+        .json(&json!({ "scene": args.scene, "method": args.method }))
+        .send()
+        .await?
+        .error_for_status()?
+        .json()
+        .await?;
+    let url = format!(
+        "{}/sessions/{}/ws?encoding=x-pvs&stats=true",
+        args.server.replacen("http", "ws", 1),
+        created.session
+    );
+    let (ws, _) = tokio_tungstenite::connect_async(url).await?;
+    Ok((created, ws))
+}
+
+/// [`open_session`] again and again, waiting longer each time (a server
+/// restarting takes a while), for up to a minute.
+async fn reopen(http: &reqwest::Client, args: &Args) -> anyhow::Result<(SessionCreated, Socket)> {
+    let mut wait = Duration::from_millis(250);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        match open_session(http, args).await {
+            Ok(opened) => return Ok(opened),
+            Err(e) if Instant::now() < deadline => {
+                eprintln!("no session yet ({e}); again in {wait:?}");
+                tokio::time::sleep(wait).await;
+                wait = (wait * 2).min(Duration::from_secs(4));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// Sends one view and reads its answer; `Err` says why the session is lost
+/// (its error, a close, a broken socket).
+async fn ask(ws: &mut Socket, view: &serde_json::Value) -> Result<Vec<u8>, String> {
+    ws.send(Message::text(view.to_string()))
+        .await
+        .map_err(|e| e.to_string())?;
+    match ws.next().await {
+        Some(Ok(Message::Binary(b))) => Ok(b.to_vec()),
+        Some(Ok(Message::Text(error))) => Err(error.to_string()),
+        other => Err(format!("the socket gave {other:?}")),
+    }
 }
 
 #[tokio::main]
@@ -140,20 +204,8 @@ async fn main() -> anyhow::Result<()> {
         .error_for_status()?
         .json()
         .await?;
-    let created: SessionCreated = http
-        .post(format!("{}/sessions", args.server))
-        .json(&json!({ "scene": args.scene, "method": args.method }))
-        .send()
-        .await?
-        .error_for_status()?
-        .json()
-        .await?;
-    let ws_url = format!(
-        "{}/sessions/{}/ws?encoding=x-pvs&stats=true",
-        args.server.replacen("http", "ws", 1),
-        created.session
-    );
-    let (mut ws, _) = tokio_tungstenite::connect_async(ws_url).await?;
+    let (mut created, mut ws) = open_session(&http, &args).await?;
+    let mut reconnects = 0;
 
     let mut visible = BTreeSet::new();
     let mut held = Held {
@@ -174,11 +226,19 @@ async fn main() -> anyhow::Result<()> {
             "eye": v.eye, "forward": v.forward, "up": v.up, "fov_y_deg": v.fov_y_deg,
             "near": v.near, "far": v.far, "viewport": args.viewport, "base": frame,
         });
-        ws.send(Message::text(view.to_string())).await?;
-        let answer = match ws.next().await {
-            Some(Ok(Message::Binary(b))) => b,
-            Some(Ok(Message::Text(error))) => anyhow::bail!("frame {i}: {error}"),
-            other => anyhow::bail!("frame {i}: the socket gave {other:?}"),
+        let answer = match ask(&mut ws, &view).await {
+            Ok(answer) => answer,
+            Err(lost) => {
+                // Sessions are soft state: a server that forgot this one
+                // (restarted, expired it) gets a new one, whose first
+                // answer is the whole set.
+                eprintln!("frame {i}: {lost}; making a new session");
+                (created, ws) = reopen(&http, &args).await?;
+                reconnects += 1;
+                let mut whole = view.clone();
+                whole["base"] = serde_json::Value::Null;
+                ask(&mut ws, &whole).await.map_err(anyhow::Error::msg)?
+            }
         };
         let XMessage::Frame(f) = xpvs::decode(&answer)? else {
             anyhow::bail!("frame {i}: not a frame message");
@@ -223,7 +283,7 @@ async fn main() -> anyhow::Result<()> {
         cull_us / n as f64
     );
     println!(
-        "geometry fetched: {} bytes; held at the end: {} bytes in {} meshes",
+        "geometry fetched: {} bytes; held at the end: {} bytes in {} meshes; {reconnects} reconnects",
         held.fetched,
         held.bytes,
         held.meshes.len()

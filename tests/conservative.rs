@@ -245,6 +245,7 @@ fn the_table_catches_a_method_that_drops_the_nearest_object() {
         name: "drops_nearest",
         purpose: "a deliberately wrong method",
         checked_with: &[],
+        options: &[],
         build: |p| {
             Ok(Arc::new(DropsNearest {
                 inner: FrustumCulling::new(p.scene().clone(), p.kd_tree()),

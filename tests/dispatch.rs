@@ -157,18 +157,21 @@ fn registry() -> Registry {
             name: "on_device",
             purpose: "frustum culling on a device's thread (a test's device)",
             checked_with: &[],
+            options: &[],
             build: |p| on_device(p, "on_device", probe()),
         })
         .with(MethodEntry {
             name: "on_hung_device",
             purpose: "frustum culling on a device that may hang (a test's device)",
             checked_with: &[],
+            options: &[],
             build: |p| on_device(p, "on_hung_device", hung_probe()),
         })
         .with(MethodEntry {
             name: "panicky",
             purpose: "a method with a bug",
             checked_with: &[],
+            options: &[],
             build: |_| Ok(Arc::new(Panicky)),
         })
 }

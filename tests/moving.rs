@@ -395,6 +395,7 @@ async fn a_fallback_answers_the_movers_of_a_method_that_culls_them_itself() {
         name: "fails_with_movers",
         purpose: "a test's method",
         checked_with: &[],
+        options: &[],
         build: |_| Ok(Arc::new(FailsWithMovers)),
     });
     let state = AppState::with_methods(

@@ -111,11 +111,21 @@ async fn a_batch_answers_in_the_order_asked_and_refuses_what_is_not_there() {
     assert_eq!(headers["content-type"], mesh::CONTENT_TYPE);
     let decoded = mesh::decode(&bytes).unwrap();
     let ids: Vec<u32> = decoded.meshes.iter().map(|m| m.id).collect();
-    assert_eq!(ids, [5, 0, 5, 3]);
+    assert_eq!(ids, [5, 0, 3], "a repeated id once, at its first place");
     for (at, &id) in ids.iter().enumerate() {
         assert_eq!(world_triangles(&decoded, at), scene_triangles(&scene, id));
     }
-    // The same bytes as one at a time, less the headers they repeat.
+    // 1,024 repeats of one object are one mesh, not 1,024.
+    let (_, _, repeated) = call_raw(
+        &state,
+        "POST",
+        "/scenes/city/meshes",
+        Some(json!({"ids": vec![5; 1024]})),
+        &[],
+    )
+    .await;
+    assert_eq!(mesh::decode(&repeated).unwrap().meshes.len(), 1);
+    // The same mesh as one at a time.
     let (_, _, one) = call_raw(&state, "GET", "/scenes/city/objects/5/mesh", NO_BODY, &[]).await;
     let single = mesh::decode(&one).unwrap();
     assert_eq!(single.meshes[0], decoded.meshes[0]);
@@ -386,4 +396,41 @@ async fn websocket_frames_carry_their_stats_when_asked() {
     assert_eq!(res.status(), StatusCode::BAD_REQUEST);
     let v: Value = res.json().await.unwrap();
     assert_eq!(v["error"]["code"], "invalid_query");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scenes_list_the_options_each_method_takes() {
+    let state = city();
+    let (_, scenes) = call(&state, "GET", "/scenes", NO_BODY).await;
+    let city = &scenes[0];
+    let options = city["options"].as_object().unwrap();
+    let mut methods: Vec<&str> = city["methods"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m.as_str().unwrap())
+        .collect();
+    methods.push("auto");
+    let listed: Vec<&str> = options.keys().map(String::as_str).collect();
+    let mut sorted = methods.clone();
+    sorted.sort_unstable();
+    assert_eq!(listed, sorted, "every supported method and auto, no other");
+    assert_eq!(options["frustum"], json!([]));
+    assert_eq!(
+        options["supporting_planes"],
+        json!(["k", "lambda", "min_cost", "temporal"])
+    );
+    // Each listed key is one the method reads (a bad value is refused as
+    // invalid, never as unknown), and an unlisted one is unknown.
+    for m in methods {
+        for key in options[m].as_array().unwrap() {
+            let body =
+                json!({"scene": "city", "method": m, "options": {key.as_str().unwrap(): "?"}});
+            let (_, v) = call(&state, "POST", "/sessions", Some(&body)).await;
+            assert_ne!(v["error"]["code"], "unknown_option", "{m} {key}: {v}");
+        }
+        let body = json!({"scene": "city", "method": m, "options": {"no_such_knob": 1}});
+        let (_, v) = call(&state, "POST", "/sessions", Some(&body)).await;
+        assert_eq!(v["error"]["code"], "unknown_option", "{m}: {v}");
+    }
 }

@@ -109,7 +109,14 @@ impl Browser {
             .goto(&server.url(&format!("/viewer?test=1&{query}")))
             .await
             .unwrap();
-        let ready = self.run("return await window.pvsd.ready;", json!([])).await;
+        // The module may still be loading when the navigation returns.
+        let ready = self
+            .run(
+                "for (let i = 0; i < 600 && !window.pvsd; i++) await new Promise(r => setTimeout(r, 50));
+                 return await window.pvsd.ready;",
+                json!([]),
+            )
+            .await;
         assert_eq!(
             ready,
             json!(true),
@@ -223,7 +230,7 @@ async fn the_page_walks_and_shows_its_numbers() {
     assert_eq!(n("drawn"), n("pvs"), "draws the visible set: {hud}");
     assert!(n("held") >= n("pvs"), "{hud}");
     assert!(n("triangles") > 0.0 && n("bytesFetched") > 0.0, "{hud}");
-    assert!(n("latencyMs") >= 0.0 && n("cullUs") > 0.0, "{hud}");
+    assert!(n("latencyMs") > 0.0 && n("cullUs") > 0.0, "{hud}");
     assert_eq!(hud["method"], "horizon");
     // What a person reads: the panel's cells are filled in.
     let cells = browser
@@ -237,6 +244,16 @@ async fn the_page_walks_and_shows_its_numbers() {
     let cells: Vec<String> = serde_json::from_value(cells).unwrap();
     assert!(cells[0].ends_with("of 1001"), "{cells:?}");
     assert!(cells[..6].iter().all(|c| c != "–"), "{cells:?}");
+    // The method picker says what the method takes, from `GET /scenes`.
+    let help = browser
+        .client()
+        .execute(
+            "return document.getElementById('option-help').textContent;",
+            vec![],
+        )
+        .await
+        .unwrap();
+    assert_eq!(help, json!("takes areas, min_area, columns"));
     if let Some(path) = std::env::var_os("PVSD_VIEWER_SCREENSHOT") {
         // The README's picture: the city from its street walk, with the
         // panel and the map.
@@ -258,6 +275,86 @@ async fn the_page_walks_and_shows_its_numbers() {
         )
         .await;
     assert_eq!(browser.errors().await, json!([]));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn walking_back_is_free_the_budget_holds_and_a_lost_session_is_made_again() {
+    let Some(browser) = Browser::start("walking_back", 640, 540).await else {
+        return;
+    };
+    let server = serve(vec![common::city_scene(1000, 7, [0.0; 3])]).await;
+    browser.open(&server, "scene=city&method=horizon").await;
+    // There and back again: the way back is held, not fetched.
+    let there = browser
+        .run(
+            "const w = window.pvsd.walk().views;
+             for (let i = 0; i <= 300; i += 10) await window.pvsd.goTo(w[i]);
+             const there = window.pvsd.hud();
+             for (let i = 300; i >= 0; i -= 10) await window.pvsd.goTo(w[i]);
+             return [there, window.pvsd.hud()];",
+            json!([]),
+        )
+        .await;
+    let (out, back) = (&there[0], &there[1]);
+    assert!(out["bytesFetched"].as_u64().unwrap() > 0, "{out}");
+    assert_eq!(out["bytesFetched"], back["bytesFetched"], "{out} {back}");
+
+    // A small budget: what left the set goes, what is in it stays.
+    browser
+        .open(&server, "scene=city&method=horizon&budget=60000")
+        .await;
+    let trimmed = browser
+        .run(
+            "const w = window.pvsd.walk().views;
+             let h, most = 0;
+             for (let i = 0; i <= 600; i += 20) {
+               h = await window.pvsd.goTo(w[i]);
+               most = Math.max(most, h.heldBytes - 60000);
+               if (h.held < h.pvs) throw new Error(`holds ${h.held} of a set of ${h.pvs}`);
+             }
+             return [h, most];",
+            json!([]),
+        )
+        .await;
+    let h = &trimmed[0];
+    assert!(
+        h["bytesFetched"].as_u64().unwrap() > 60_000,
+        "the walk fetched more than it holds: {h}"
+    );
+    assert!(
+        h["heldBytes"].as_u64().unwrap() < h["bytesFetched"].as_u64().unwrap(),
+        "{h}"
+    );
+
+    // The server forgets the session: the page makes a new one and walks on.
+    let sid = h["session"].as_str().unwrap().to_string();
+    let gone = reqwest::Client::new()
+        .delete(server.url(&format!("/sessions/{sid}")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(gone.status(), 204);
+    let after = browser
+        .run(
+            "const w = window.pvsd.walk().views;
+             let h = window.pvsd.hud();
+             for (let i = 0; i < 100 && h.reconnects === 0; i++) {
+               await window.pvsd.goTo(w[700 + i]);
+               h = window.pvsd.hud();
+             }
+             return await window.pvsd.goTo(w[800]);",
+            json!([]),
+        )
+        .await;
+    assert_eq!(after["reconnects"], 1, "{after}");
+    assert_ne!(after["session"], sid, "{after}");
+    assert!(after["pvs"].as_u64().unwrap() > 0, "{after}");
+    assert_eq!(after["drawn"], after["pvs"], "{after}");
+    assert_eq!(
+        browser.errors().await,
+        json!([]),
+        "a lost session is no error"
+    );
 }
 
 /// The bit of a pixel of the viewer's id pictures set for see-through triangles.
@@ -402,7 +499,7 @@ async fn assert_same_picture(browser: &Browser, server: &Server, scene: &Scene, 
                 // A camera off by anything (aspect, an axis, the origin)
                 // differs inside surfaces, not only at their edges.
                 assert!(
-                    a.same > 0.99 && a.at_edges > 0.5,
+                    a.same > 0.99 && (a.same == 1.0 || a.at_edges > 0.5),
                     "{id} view {i}: the browser drew another view: {a:?}"
                 );
                 r["ids"] = Value::Null;

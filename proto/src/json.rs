@@ -183,6 +183,11 @@ pub struct SceneInfo {
     /// Methods it does not support, each with why (e.g. `horizon` on a
     /// scene that is no height field over a ground).
     pub unsupported: BTreeMap<String, String>,
+    /// The options each method it supports takes, and `auto`'s (e.g.
+    /// `"supporting_planes": ["k", "lambda", "min_cost", "temporal"]`): the
+    /// keys of a request's `options`, for clients' forms.
+    #[serde(default)]
+    pub options: BTreeMap<String, Vec<String>>,
     /// What `auto` answers with here, and the measurements behind it
     /// (absent from servers older than the ranking; read as unmeasured).
     #[serde(default)]
@@ -276,7 +281,8 @@ pub struct WalkResponse {
 }
 
 /// The body of `POST /scenes/{id}/meshes`: the objects whose triangles
-/// the client wants, answered in this order (`application/x-pvs-mesh`).
+/// the client wants, answered in this order, a repeated id once
+/// (`application/x-pvs-mesh`).
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, Eq, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MeshesRequest {

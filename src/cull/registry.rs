@@ -196,6 +196,8 @@ pub struct MethodEntry {
     /// is hidden (`variant=fse`, `k=8:temporal=false`): the
     /// conservativeness table (tests/conservative.rs) checks each.
     pub checked_with: &'static [&'static str],
+    /// The options it takes (`GET /scenes` lists them for clients' forms).
+    pub options: &'static [&'static str],
     /// How to build it for one scene.
     pub build: Build,
 }

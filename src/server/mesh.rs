@@ -3,13 +3,16 @@
 //!
 //! - `GET /scenes/{id}/objects/{oid}/mesh`: one object.
 //! - `POST /scenes/{id}/meshes` `{"ids": [...]}`: many in one message, in
-//!   the order asked, for a client catching up with a frame's `added`.
+//!   the order asked (a repeated id once, at its first place), for a
+//!   client catching up with a frame's `added`.
 //!
 //! Answers carry a strong `ETag` (a hash of the bytes) and
 //! `Cache-Control: no-cache`: a cache keeps them but asks again, and a
 //! `GET` with a matching `If-None-Match` gets `304` and no body. The bytes
 //! change when a reload changes the scene file or a movable object moves,
 //! so a client never draws geometry the server no longer culls with.
+
+use std::sync::Arc;
 
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
@@ -20,6 +23,7 @@ use pvsd_proto::mesh::{self, MeshRef};
 use super::error::ApiError;
 use super::extract::{RawBody, parse};
 use super::state::AppState;
+use crate::cull::SceneMethods;
 use crate::scene::{IndexedMesh, MoveError, Scene};
 
 /// `GET /scenes/{id}/objects/{oid}/mesh`.
@@ -29,9 +33,8 @@ pub async fn object_mesh(
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let methods = state.scene(&id)?;
-    let scene = methods.scene();
-    let oid = object_id(scene, &oid)?;
-    let bytes = encode(scene, &[oid]);
+    let oid = object_id(methods.scene(), &oid)?;
+    let bytes = encoded(methods, vec![oid]).await?;
     let tag = etag(&bytes);
     let matched = headers
         .get_all(header::IF_NONE_MATCH)
@@ -53,17 +56,24 @@ pub async fn meshes(
 ) -> Result<Response, ApiError> {
     let methods = state.scene(&id)?;
     let req: MeshesRequest = parse(&body, state.limits().json)?;
-    let scene = methods.scene();
     for &oid in &req.ids {
-        object_id(scene, &oid.to_string())?;
+        object_id(methods.scene(), &oid.to_string())?;
     }
-    // A thousand meshes of a big scene take milliseconds to gather: off
-    // the async workers.
-    let bytes = tokio::task::spawn_blocking(move || encode(methods.scene(), &req.ids))
-        .await
-        .map_err(|e| ApiError::Internal(format!("encoding meshes failed: {e}")))?;
+    // Each object once, at its first place: an answer is never more than
+    // the scene's own meshes, however the ids repeat.
+    let mut seen = std::collections::HashSet::new();
+    let ids: Vec<u32> = req.ids.into_iter().filter(|&i| seen.insert(i)).collect();
+    let bytes = encoded(methods, ids).await?;
     let tag = etag(&bytes);
     Ok(answer(bytes, &tag))
+}
+
+/// The message of objects `ids` of the scene, made on the blocking pool:
+/// a big object, or a thousand, take milliseconds.
+async fn encoded(methods: Arc<SceneMethods>, ids: Vec<u32>) -> Result<Vec<u8>, ApiError> {
+    tokio::task::spawn_blocking(move || encode(methods.scene(), &ids))
+        .await
+        .map_err(|e| ApiError::Internal(format!("encoding meshes failed: {e}")))
 }
 
 /// The object `oid` names in `scene`.

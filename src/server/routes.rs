@@ -4,6 +4,7 @@
 //! runs it where its method says: inline, on the blocking pool, or on a
 //! device's queue. The handlers know no method's insides.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use axum::Json;
@@ -22,6 +23,7 @@ use super::extract::{RawBody, parse};
 use super::session::Session;
 use super::state::AppState;
 use super::wire::{BoundsExt, MoveRequestExt, ViewRequestExt, method_spec};
+use crate::cull::ranking::FrameCost;
 use crate::cull::{ClientCache, CullJob, Culler, MethodSpec, SceneMethods, View};
 use crate::scene::MoveError;
 
@@ -50,11 +52,26 @@ pub async fn scenes(State(state): State<AppState>) -> Json<Vec<SceneInfo>> {
                         .iter()
                         .map(|u| (u.method.to_string(), u.reason.clone()))
                         .collect(),
+                    options: method_options(&state, m),
                     auto: auto_info(m),
                 }
             })
             .collect(),
     )
+}
+
+/// The option keys of each method `m` supports, and `auto`'s.
+fn method_options(state: &AppState, m: &SceneMethods) -> BTreeMap<String, Vec<String>> {
+    let names = m.names();
+    let keys = |k: &[&str]| k.iter().map(|s| s.to_string()).collect();
+    state
+        .registry()
+        .entries()
+        .iter()
+        .filter(|e| names.contains(&e.name))
+        .map(|e| (e.name.to_string(), keys(e.options)))
+        .chain([("auto".to_string(), keys(&FrameCost::KEYS))])
+        .collect()
 }
 
 /// What `auto` answers with on a scene, and the ranking behind it.

@@ -369,6 +369,11 @@ impl AppState {
         &self.inner.metrics
     }
 
+    /// The methods the server knows.
+    pub fn registry(&self) -> &Registry {
+        &self.inner.registry
+    }
+
     /// The limits.
     pub fn limits(&self) -> Limits {
         self.inner.limits

@@ -127,6 +127,7 @@ const NEAR_SLACK: f64 = 1e-6;
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "ddo",
     purpose: "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
+    options: &OPTIONS,
     checked_with: &["regions=32", "map=grid:cells=16", "splits=2"],
     build,
 };

@@ -27,6 +27,7 @@ use crate::spatial::KdTree;
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "frustum",
     purpose: "view-frustum culling over the kd-tree; the exact in-frustum set, and the fallback of every other method",
+    options: &[],
     checked_with: &[],
     build,
 };

@@ -118,6 +118,7 @@ const OPTIONS: [&str; 7] = [
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "gpu",
     purpose: "hardware occlusion queries on a Vulkan device, lavapipe on the CPU (Tai & Hsu)",
+    options: &OPTIONS,
     checked_with: &["batch=1", "tier=0"],
     build,
 };

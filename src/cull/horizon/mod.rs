@@ -111,6 +111,7 @@ const WIDE_WINDOW: f64 = 64.0;
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "horizon",
     purpose: "occlusion horizons over convex vertical prisms (Downs et al.): cities standing on a ground",
+    options: &OPTIONS,
     checked_with: &["columns=64"],
     build,
 };

@@ -45,6 +45,7 @@ use crate::geom::{Aabb, Plane};
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "occlusion_tree",
     purpose: "occlusion trees over k occluders picked per view (Bittner et al.): interiors and cities with large walls",
+    options: &OPTIONS,
     checked_with: &[
         "variant=fse",
         "variant=fmc",

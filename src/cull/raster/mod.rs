@@ -87,6 +87,7 @@ use crate::spatial::{KdTree, NodeKind};
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "raster",
     purpose: "a conservative depth buffer on the CPU (SIMD) drawn from visible surfaces as a front-to-back walk finds them: general scenes",
+    options: &OPTIONS,
     checked_with: &["cell=1", "simd=false:splits=0", "min_size=0:budget=64"],
     build,
 };

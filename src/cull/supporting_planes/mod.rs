@@ -38,6 +38,7 @@ use crate::spatial::NodeKind;
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "supporting_planes",
     purpose: "supporting and separating planes against large occluders, cached between frames (Coorg & Teller)",
+    options: &SelectionOptions::KEYS,
     checked_with: &["k=8:temporal=false:min_cost=0"],
     build,
 };

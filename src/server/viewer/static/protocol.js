@@ -120,6 +120,7 @@ export function decodeMeshes(buffer) {
     const opaque = view.getUint32(at + 16, true);
     if (flags & ~3 || opaque > triangles) throw new Error(`x-pvs-mesh: mesh ${n} is malformed`);
     const small = (flags & 1) !== 0;
+    if (small !== vertices <= 65536) throw new Error(`x-pvs-mesh: mesh ${n} has the wrong index size`);
     at += 20;
     const indexBytes = triangles * 3 * (small ? 2 : 4);
     const end = at + vertices * 12 + Math.ceil(indexBytes / 4) * 4;
@@ -127,6 +128,12 @@ export function decodeMeshes(buffer) {
     const positions = new Float32Array(buffer, at, vertices * 3);
     at += vertices * 12;
     const indices = small ? new Uint16Array(buffer, at, triangles * 3) : new Uint32Array(buffer, at, triangles * 3);
+    for (let i = 0; i < indices.length; i++) {
+      if (indices[i] >= vertices) throw new Error(`x-pvs-mesh: mesh ${n} has an index past its vertices`);
+    }
+    for (let k = at + indexBytes; k < end; k++) {
+      if (view.getUint8(k) !== 0) throw new Error(`x-pvs-mesh: mesh ${n} has nonzero padding`);
+    }
     at = end;
     meshes.push({ id, movable: (flags & 2) !== 0, positions, indices, opaque, bytes: end - start });
   }

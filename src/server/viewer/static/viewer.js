@@ -33,7 +33,7 @@ addEventListener('unhandledrejection', (e) => report(e.reason?.message ?? e.reas
 /** A request to pvsd; an error answer becomes an Error naming its code. */
 async function call(path, init = {}) {
   const res = await fetch(path, init);
-  if (!res.ok) {
+  if (!res.ok && res.status !== 304) {
     let message = `${res.status} ${res.statusText}`;
     try {
       const body = await res.json();
@@ -62,19 +62,6 @@ function parseOptions(text) {
   return out;
 }
 
-// Examples of each method's knobs (the server names every option it
-// refuses, with what it takes).
-const OPTION_HINTS = {
-  frustum: 'no options',
-  occlusion_tree: 'k=32:variant=fme',
-  supporting_planes: 'k=32',
-  horizon: 'columns=256 (min_area=… drops small objects: not conservative)',
-  ddo: 'regions, map, cells, planes, splits',
-  gpu: 'contribution=0 (above 0: not conservative)',
-  raster: 'cell=2:min_size=16:splits=2',
-  auto: 'per_triangle_ns, per_byte_ns',
-};
-
 /** Bytes as people read them. */
 function bytes(n) {
   if (n < 1024) return `${n} B`;
@@ -93,8 +80,9 @@ const PALETTE = [0xc9b79c, 0x9fb4c7, 0xb8c99c, 0xc7a59f, 0xa99fc7, 0xc7c19f, 0x9
 class Drawable {
   constructor(mesh) {
     const g = new THREE.BufferGeometry();
-    g.setAttribute('position', new THREE.BufferAttribute(mesh.positions, 3));
-    g.setIndex(new THREE.BufferAttribute(mesh.indices, 1));
+    // Copies: a view would keep its whole batch's buffer alive.
+    g.setAttribute('position', new THREE.BufferAttribute(mesh.positions.slice(), 3));
+    g.setIndex(new THREE.BufferAttribute(mesh.indices.slice(), 1));
     const triangles = mesh.indices.length / 3;
     g.addGroup(0, mesh.opaque * 3, 0);
     g.addGroup(mesh.opaque * 3, (triangles - mesh.opaque) * 3, 1);
@@ -173,6 +161,8 @@ const Materials = {
  * The client's geometry: every object it holds, fetched in batches the
  * first time it is wanted, kept in least-recently-wanted order and
  * trimmed to `budget` bytes, never dropping an object that is wanted now.
+ * Movable objects are asked again (`If-None-Match`, so an unmoved one
+ * costs a 304) at most once a second while they are wanted.
  */
 class Geometry {
   constructor(sceneId, three, budget) {
@@ -184,60 +174,97 @@ class Geometry {
     this.heldBytes = 0;
     this.fetchedBytes = 0;
     this.fetches = 0;
+    this.batch = 1024; // the server's default JSON array limit; halved on a 413
+    this.cleared = false;
   }
 
   /** Resolves once every id in `ids` is held. */
   async want(ids) {
     const missing = ids.filter((id) => !this.held.has(id) && !this.pending.has(id));
-    for (let i = 0; i < missing.length; i += 1024) {
-      const batch = missing.slice(i, i + 1024);
+    for (let i = 0; i < missing.length; i += this.batch) {
+      const batch = missing.slice(i, i + this.batch);
       const done = this.fetch(batch);
       for (const id of batch) this.pending.set(id, done);
     }
+    const now = performance.now();
     for (const id of ids) {
       const d = this.held.get(id);
-      if (d) { this.held.delete(id); this.held.set(id, d); }
+      if (!d) continue;
+      this.held.delete(id);
+      this.held.set(id, d);
+      if (d.movable && now - d.checked > 1000) this.revalidate(d, now).catch((e) => report(e.message, false));
     }
     await Promise.all(ids.map((id) => this.pending.get(id)).filter(Boolean));
   }
 
   async fetch(ids) {
     try {
-      const res = await call(`/scenes/${encodeURIComponent(this.sceneId)}/meshes`, {
-        method: 'POST', headers: { 'content-type': 'application/json' }, body: JSON.stringify({ ids }),
-      });
+      let res;
+      try {
+        res = await call(`/scenes/${encodeURIComponent(this.sceneId)}/meshes`, {
+          method: 'POST', headers: { 'content-type': 'application/json' }, body: JSON.stringify({ ids }),
+        });
+      } catch (e) {
+        // A server with a lower array limit than ours: halve the batches.
+        if (e.status !== 413 || ids.length < 2) throw e;
+        this.batch = Math.max(1, Math.floor(ids.length / 2));
+        const half = Math.ceil(ids.length / 2);
+        await Promise.all([this.fetch(ids.slice(0, half)), this.fetch(ids.slice(half))]);
+        return;
+      }
       const buffer = await res.arrayBuffer();
+      if (this.cleared) return; // another scene since
       this.fetchedBytes += buffer.byteLength;
       this.fetches += 1;
-      for (const m of decodeMeshes(buffer).meshes) {
-        if (this.held.has(m.id)) continue;
-        const d = new Drawable(m);
-        this.held.set(m.id, d);
-        this.heldBytes += d.bytes;
-        this.three.add(d.object);
-      }
+      for (const m of decodeMeshes(buffer).meshes) this.keep(m);
     } finally {
       for (const id of ids) this.pending.delete(id);
     }
   }
 
+  keep(mesh, etag = null) {
+    const old = this.held.get(mesh.id);
+    if (old) this.drop(old);
+    const d = new Drawable(mesh);
+    d.etag = etag;
+    d.checked = performance.now();
+    this.held.set(mesh.id, d);
+    this.heldBytes += d.bytes;
+    this.three.add(d.object);
+  }
+
+  /** Asks for a movable object's mesh again, unless it is unchanged. */
+  async revalidate(d, now) {
+    d.checked = now;
+    const headers = d.etag ? { 'if-none-match': d.etag } : {};
+    const res = await call(`/scenes/${encodeURIComponent(this.sceneId)}/objects/${d.id}/mesh`, { headers });
+    if (res.status === 304 || this.cleared) return;
+    const buffer = await res.arrayBuffer();
+    this.fetchedBytes += buffer.byteLength;
+    const [mesh] = decodeMeshes(buffer).meshes;
+    if (this.held.get(d.id) === d) this.keep(mesh, res.headers.get('etag'));
+  }
+
+  drop(d) {
+    this.three.remove(d.object);
+    d.dispose();
+    this.held.delete(d.id);
+    this.heldBytes -= d.bytes;
+  }
+
   /** Lets go of the least recently wanted objects not in `keep` while over budget. */
   trim(keep) {
-    for (const [id, d] of this.held) {
+    for (const d of [...this.held.values()]) {
       if (this.heldBytes <= this.budget) break;
-      if (keep.has(id)) continue;
-      this.three.remove(d.object);
-      d.dispose();
-      this.held.delete(id);
-      this.heldBytes -= d.bytes;
+      if (!keep.has(d.id)) this.drop(d);
     }
   }
 
-  /** Drops everything (another scene, or a reload). */
+  /** Drops everything, for good (another scene, a reload, a new session). */
   clear() {
-    for (const d of this.held.values()) { this.three.remove(d.object); d.dispose(); }
-    this.held.clear();
-    this.heldBytes = 0;
+    this.cleared = true;
+    for (const d of [...this.held.values()]) this.drop(d);
+    this.pending.clear();
   }
 }
 
@@ -312,7 +339,9 @@ class Link {
     if (typeof data === 'string') {
       // An error about this view (the session lives on) or about the session.
       const body = JSON.parse(data);
-      this.onTrouble(`${body.error.code}: ${body.error.message}`);
+      // A lost session is soft state, made again when the socket closes.
+      const lost = ['unknown_session', 'session_expired', 'session_evicted'].includes(body.error.code);
+      this.onTrouble(`${body.error.code}: ${body.error.message}`, !lost);
     } else {
       const f = decodeFrame(data);
       if (f.base === null) this.visible.clear();
@@ -334,18 +363,17 @@ class Link {
     if (ws !== this.ws || this.stopped) return;
     this.ws = null;
     this.onTrouble('the session was lost; making a new one', false);
-    // What was asked and not answered is asked again of the new session.
+    // What was asked and not answered waits, merged into one ask of the
+    // newest view, for the new session's socket (`connect` sends it).
     const pending = [this.inFlight, this.queued].filter(Boolean);
     this.inFlight = null;
-    this.queued = null;
+    this.queued = pending.length
+      ? { view: pending[pending.length - 1].view, waiters: pending.flatMap((p) => p.waiters) }
+      : null;
     for (let wait = 250; !this.stopped; wait = Math.min(wait * 2, 5000)) {
       try {
         await this.connect();
         this.reconnects += 1;
-        if (pending.length) {
-          const last = pending[pending.length - 1];
-          this.transmit({ view: last.view, waiters: pending.flatMap((p) => p.waiters) });
-        }
         return;
       } catch (e) {
         this.onTrouble(`reconnecting: ${e.message}`, false);
@@ -394,6 +422,7 @@ const state = {
   autoWalk: null,
   latency: [],
   lastFrame: null,
+  map: null,
   usersVisible: [],
   poses: new Map(),
   dirty: true,
@@ -501,6 +530,7 @@ function hud() {
     usersVisible: state.usersVisible,
     reconnects: link?.reconnects ?? 0,
     user: link?.user ?? null,
+    session: link?.session ?? null,
     drawMs: state.drawMs ?? null,
     mapMs: state.mapMs ?? null,
     walkthrough: state.walkthrough,
@@ -619,13 +649,16 @@ function drawMap() {
 
 const AVATAR = { half: 0.25, below: 1.7, above: 0.1 }; // DESIGN: 0.5 × 1.8 × 0.5 m under the eye
 
+const avatarShape = new THREE.BoxGeometry(AVATAR.half * 2, AVATAR.below + AVATAR.above, AVATAR.half * 2);
+const avatarLook = new THREE.MeshLambertMaterial({ color: 0x3182ce, emissive: 0x102040 });
+
 function placeAvatars() {
+  // One shape and one material for all: boxes come and go every frame.
   avatars.clear();
   for (const user of state.usersVisible) {
     const pose = state.poses.get(user);
     if (!pose) continue;
-    const g = new THREE.BoxGeometry(AVATAR.half * 2, AVATAR.below + AVATAR.above, AVATAR.half * 2);
-    const m = new THREE.Mesh(g, new THREE.MeshLambertMaterial({ color: 0x3182ce, emissive: 0x102040 }));
+    const m = new THREE.Mesh(avatarShape, avatarLook);
     const e = pose.eye.map((v, i) => v - state.origin[i]);
     m.position.set(e[0], e[1] - (AVATAR.below - AVATAR.above) / 2, e[2]);
     m.name = user;
@@ -647,21 +680,44 @@ async function pollWalkthrough() {
 // ------------------------------------------------------------- the frames
 
 function onFrame(frame, latency) {
+  // A new session after the first (a reconnect, or a reload rebound this
+  // one) starts over: what is held may be of another version of the scene.
+  const startedOver = frame.base === null && state.lastFrame !== null;
   state.lastFrame = frame;
   if (latency !== null) {
     state.latency.push(latency);
     if (state.latency.length > 120) state.latency.shift();
   }
   state.usersVisible = frame.users ?? [];
-  const visible = state.link.visible;
-  const wanted = $('draw').value === 'tinted' ? state.objects.map((o) => o.id) : [...visible];
-  state.geometry.want(wanted).then(() => {
-    state.geometry.trim(visible);
-    state.dirty = true;
-  }).catch((e) => report(e.message));
+  const fetchAndDraw = () => {
+    const visible = state.link.visible;
+    const wanted = $('draw').value === 'tinted' ? state.objects.map((o) => o.id) : [...visible];
+    return state.geometry.want(wanted).then(() => {
+      state.geometry.trim(visible);
+      state.dirty = true;
+    });
+  };
+  (startedOver ? readScene().then(fetchAndDraw) : fetchAndDraw()).catch((e) => report(e.message));
   if (state.walkthrough) placeAvatars();
   showHud();
   drawMap();
+}
+
+/**
+ * The scene's origin (an empty batch is the origin alone) and objects, and
+ * a fresh geometry store: at the start, and again when a session starts
+ * over (a reload may have changed the scene).
+ */
+async function readScene() {
+  const sid = encodeURIComponent(state.scene.id);
+  state.geometry?.clear();
+  state.geometry = new Geometry(state.scene.id, three, Number(params.get('budget') ?? 256 * 1024 * 1024));
+  const head = await call(`/scenes/${sid}/meshes`, {
+    method: 'POST', headers: { 'content-type': 'application/json' }, body: '{"ids":[]}',
+  });
+  state.origin = decodeMeshes(await head.arrayBuffer()).origin;
+  state.objects = await getJson(`/scenes/${sid}/objects`);
+  state.map = null;
 }
 
 /** Sends the current view; resolves once its answer is applied and its geometry held. */
@@ -770,8 +826,11 @@ function fillMethods() {
   showOptionHelp();
 }
 
+/** The options the picked method takes, as `GET /scenes` lists them. */
 function showOptionHelp() {
-  $('option-help').textContent = OPTION_HINTS[$('method').value] ?? '';
+  const keys = state.scene?.options?.[$('method').value] ?? [];
+  $('option-help').textContent = keys.length ? `takes ${keys.join(', ')}` : 'takes no options';
+  $('options').placeholder = keys.length ? keys.map((k) => `${k}=…`).join(':') : '';
 }
 
 /** Loads scene `id`: its origin, objects and walk, then a session. */
@@ -787,13 +846,7 @@ async function openScene(id, { method, options, walkthrough } = {}) {
   if (method) $('method').value = method;
   if (options !== undefined) $('options').value = options;
   const sid = encodeURIComponent(id);
-  // An empty batch is the origin alone.
-  const head = await call(`/scenes/${sid}/meshes`, {
-    method: 'POST', headers: { 'content-type': 'application/json' }, body: '{"ids":[]}',
-  });
-  state.origin = decodeMeshes(await head.arrayBuffer()).origin;
-  state.objects = await getJson(`/scenes/${sid}/objects`);
-  state.geometry = new Geometry(id, three, Number(params.get('budget') ?? 256 * 1024 * 1024));
+  await readScene();
   state.walk = null;
   for (const kind of ['street', 'orbit']) {
     try {
@@ -823,6 +876,7 @@ async function openScene(id, { method, options, walkthrough } = {}) {
     if (state.walkthrough) return postJson(`/walkthroughs/${state.walkthrough}/users`);
     return postJson('/sessions', body);
   };
+  state.lastFrame = null;
   state.link = new Link(open, onFrame, (m, fatal) => report(m, fatal !== false));
   await state.link.connect();
   state.latency = [];
