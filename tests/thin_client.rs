@@ -434,3 +434,78 @@ async fn scenes_list_the_options_each_method_takes() {
         assert_eq!(v["error"]["code"], "unknown_option", "{m}: {v}");
     }
 }
+
+/// The measure at the 1k city's scale, as a thin client streams
+/// it: a 60-second street walk (1,800 frames, 10 m/s) over a session's
+/// WebSocket, fetching each object's mesh the first time it is in the set,
+/// costs a small share of the scene file (docs/viewer.md has the 10k
+/// city's figures and the browser's).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_street_walk_streams_a_small_share_of_the_scene_file() {
+    let options = pvsd::scene::generate::CityOptions {
+        seed: 7,
+        buildings: 1000,
+        ..Default::default()
+    };
+    let file = pvsd::scene::generate::city(&options).to_glb().len();
+    let s = Server::start(
+        AppState::new(
+            vec![common::city_scene(1000, 7, [0.0; 3])],
+            Limits::default(),
+        )
+        .unwrap(),
+    )
+    .await;
+    let c = reqwest::Client::new();
+    let walk: Value =
+        common::fetch(c.get(s.url("/scenes/city/walk?frames=1800&step=0.3333"))).await;
+    let sid = new_session(&c, &s, json!({"scene": "city", "method": "horizon"})).await;
+    let (mut ws, _) =
+        tokio_tungstenite::connect_async(s.ws_url(&format!("/sessions/{sid}/ws?encoding=x-pvs")))
+            .await
+            .unwrap();
+    let (mut visible, mut held) = (
+        std::collections::BTreeSet::new(),
+        std::collections::BTreeSet::new(),
+    );
+    let (mut frame, mut fetched) = (None::<u64>, 0);
+    for v in walk["views"].as_array().unwrap() {
+        let mut view = v.clone();
+        view["viewport"] = json!([1024, 640]);
+        view["base"] = json!(frame);
+        ws.send(Message::text(view.to_string())).await.unwrap();
+        let Some(Ok(Message::Binary(b))) = ws.next().await else {
+            panic!("no frame");
+        };
+        let XMessage::Frame(f) = xpvs::decode(&b).unwrap() else {
+            panic!("not a frame");
+        };
+        for id in &f.removed {
+            visible.remove(id);
+        }
+        visible.extend(f.added.iter().copied());
+        frame = Some(f.frame);
+        let missing: Vec<u32> = visible.difference(&held).copied().collect();
+        if !missing.is_empty() {
+            let bytes = c
+                .post(s.url("/scenes/city/meshes"))
+                .json(&json!({ "ids": missing }))
+                .send()
+                .await
+                .unwrap()
+                .bytes()
+                .await
+                .unwrap();
+            assert_eq!(mesh::decode(&bytes).unwrap().meshes.len(), missing.len());
+            fetched += bytes.len();
+            held.extend(missing);
+        }
+    }
+    let share = fetched as f64 / file as f64;
+    eprintln!(
+        "1,800 frames: {} objects fetched, {fetched} bytes = {:.2}% of the {file}-byte file",
+        held.len(),
+        share * 100.0
+    );
+    assert!(fetched > 0 && share < 0.10, "{share}");
+}
