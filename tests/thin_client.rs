@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use axum::http::StatusCode;
 use common::router::{NO_BODY, call, call_raw};
-use common::server::{Server, new_session};
+use common::server::{Held, Server, new_session};
 use futures_util::{SinkExt, StreamExt};
 use glam::DVec3;
 use pvsd::scene::{Scene, SceneBuilder};
@@ -464,15 +464,13 @@ async fn a_street_walk_streams_a_small_share_of_the_scene_file() {
         tokio_tungstenite::connect_async(s.ws_url(&format!("/sessions/{sid}/ws?encoding=x-pvs")))
             .await
             .unwrap();
-    let (mut visible, mut held) = (
-        std::collections::BTreeSet::new(),
-        std::collections::BTreeSet::new(),
-    );
-    let (mut frame, mut fetched) = (None::<u64>, 0);
+    // `visible`: the set held; `meshes`: the ids whose triangles are held.
+    let (mut visible, mut meshes) = (Held::default(), std::collections::BTreeSet::new());
+    let mut fetched = 0;
     for v in walk["views"].as_array().unwrap() {
         let mut view = v.clone();
         view["viewport"] = json!([1024, 640]);
-        view["base"] = json!(frame);
+        view["base"] = json!(visible.frame);
         ws.send(Message::text(view.to_string())).await.unwrap();
         let Some(Ok(Message::Binary(b))) = ws.next().await else {
             panic!("no frame");
@@ -480,12 +478,8 @@ async fn a_street_walk_streams_a_small_share_of_the_scene_file() {
         let XMessage::Frame(f) = xpvs::decode(&b).unwrap() else {
             panic!("not a frame");
         };
-        for id in &f.removed {
-            visible.remove(id);
-        }
-        visible.extend(f.added.iter().copied());
-        frame = Some(f.frame);
-        let missing: Vec<u32> = visible.difference(&held).copied().collect();
+        visible.apply(&f);
+        let missing: Vec<u32> = visible.ids.difference(&meshes).copied().collect();
         if !missing.is_empty() {
             let bytes = c
                 .post(s.url("/scenes/city/meshes"))
@@ -498,13 +492,13 @@ async fn a_street_walk_streams_a_small_share_of_the_scene_file() {
                 .unwrap();
             assert_eq!(mesh::decode(&bytes).unwrap().meshes.len(), missing.len());
             fetched += bytes.len();
-            held.extend(missing);
+            meshes.extend(missing);
         }
     }
     let share = fetched as f64 / file as f64;
     eprintln!(
         "1,800 frames: {} objects fetched, {fetched} bytes = {:.2}% of the {file}-byte file",
-        held.len(),
+        meshes.len(),
         share * 100.0
     );
     assert!(fetched > 0 && share < 0.10, "{share}");
