@@ -33,9 +33,11 @@ pub async fn object_mesh(
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let methods = state.scene(&id)?;
-    let oid = object_id(methods.scene(), &oid)?;
-    let bytes = encoded(methods, vec![oid]).await?;
-    let tag = etag(&bytes);
+    let oid = oid
+        .parse()
+        .map_err(|_| ApiError::Move(MoveError::Unknown(oid.clone())))?;
+    known(methods.scene(), oid)?;
+    let (bytes, tag) = encoded(methods, vec![oid]).await?;
     let matched = headers
         .get_all(header::IF_NONE_MATCH)
         .iter()
@@ -57,31 +59,35 @@ pub async fn meshes(
     let methods = state.scene(&id)?;
     let req: MeshesRequest = parse(&body, state.limits().json)?;
     for &oid in &req.ids {
-        object_id(methods.scene(), &oid.to_string())?;
+        known(methods.scene(), oid)?;
     }
     // Each object once, at its first place: an answer is never more than
     // the scene's own meshes, however the ids repeat.
     let mut seen = std::collections::HashSet::new();
     let ids: Vec<u32> = req.ids.into_iter().filter(|&i| seen.insert(i)).collect();
-    let bytes = encoded(methods, ids).await?;
-    let tag = etag(&bytes);
+    let (bytes, tag) = encoded(methods, ids).await?;
     Ok(answer(bytes, &tag))
 }
 
-/// The message of objects `ids` of the scene, made on the blocking pool:
-/// a big object, or a thousand, take milliseconds.
-async fn encoded(methods: Arc<SceneMethods>, ids: Vec<u32>) -> Result<Vec<u8>, ApiError> {
-    tokio::task::spawn_blocking(move || encode(methods.scene(), &ids))
-        .await
-        .map_err(|e| ApiError::Internal(format!("encoding meshes failed: {e}")))
+/// The message of objects `ids` of the scene and its tag, made on the
+/// blocking pool: a big object, or a thousand, take milliseconds.
+async fn encoded(methods: Arc<SceneMethods>, ids: Vec<u32>) -> Result<(Vec<u8>, String), ApiError> {
+    tokio::task::spawn_blocking(move || {
+        let bytes = encode(methods.scene(), &ids);
+        let tag = etag(&bytes);
+        (bytes, tag)
+    })
+    .await
+    .map_err(|e| ApiError::Internal(format!("encoding meshes failed: {e}")))
 }
 
-/// The object `oid` names in `scene`.
-fn object_id(scene: &Scene, oid: &str) -> Result<u32, ApiError> {
-    oid.parse::<u32>()
-        .ok()
-        .filter(|&i| (i as usize) < scene.objects().len())
-        .ok_or_else(|| ApiError::Move(MoveError::Unknown(oid.to_string())))
+/// Refuses an id `scene` has no object for.
+fn known(scene: &Scene, oid: u32) -> Result<(), ApiError> {
+    if (oid as usize) < scene.objects().len() {
+        Ok(())
+    } else {
+        Err(ApiError::Move(MoveError::Unknown(oid.to_string())))
+    }
 }
 
 /// The message of objects `ids` (each known to `scene`).

@@ -173,7 +173,6 @@ class Geometry {
     this.pending = new Map(); // id -> Promise
     this.heldBytes = 0;
     this.fetchedBytes = 0;
-    this.fetches = 0;
     this.batch = 1024; // the server's default JSON array limit; halved on a 413
     this.cleared = false;
   }
@@ -215,7 +214,6 @@ class Geometry {
       const buffer = await res.arrayBuffer();
       if (this.cleared) return; // another scene since
       this.fetchedBytes += buffer.byteLength;
-      this.fetches += 1;
       for (const m of decodeMeshes(buffer).meshes) this.keep(m);
     } finally {
       for (const id of ids) this.pending.delete(id);
