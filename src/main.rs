@@ -20,7 +20,7 @@ use pvsd::scene::generate::{
     CadOptions, CityOptions, CrowdOptions, OfficeOptions, cad, city, crowd, office,
 };
 use pvsd::scene::{BakeCache, Scene, load_path, load_slice};
-use pvsd::server::config::ServeConfig;
+use pvsd::server::config::{ServeConfig, check_replica_name};
 use pvsd::server::{AppState, shutdown_signal};
 use pvsd_proto::json::{Stats, VisibleResponse};
 
@@ -139,6 +139,11 @@ struct ServeArgs {
     /// the config's bake_dir, else $XDG_CACHE_HOME/pvsd or ~/.cache/pvsd].
     #[arg(long, value_name = "DIR")]
     bake_dir: Option<PathBuf>,
+    /// This replica's name, sent in every answer's x-pvsd-replica header
+    /// (several replicas behind one load balancer) [default: the config's
+    /// replica].
+    #[arg(long, env = "PVSD_REPLICA", value_name = "NAME")]
+    replica: Option<String>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -326,16 +331,11 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         Some(p) => ServeConfig::load(p)?,
         None => ServeConfig::default(),
     };
+    let replica = args.replica.clone().or_else(|| config.replica.clone());
+    if let Some(name) = &replica {
+        check_replica_name(name).map_err(|e| anyhow::anyhow!("--replica: {e}"))?;
+    }
     let paths: Vec<PathBuf> = config.scenes.iter().chain(&args.scenes).cloned().collect();
-    let scenes = if paths.is_empty() {
-        tracing::info!("no --scene given: serving a generated city as 'city'");
-        vec![default_city()?]
-    } else {
-        paths
-            .iter()
-            .map(|p| load_scene(p))
-            .collect::<anyhow::Result<Vec<_>>>()?
-    };
     let mut context = config.method_context();
     if let Some(dir) = &args.bake_dir {
         context.bake_dir = Some(dir.clone());
@@ -345,22 +345,16 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     {
         tracing::warn!("the bake cache cannot be written ({e}): serving without caching bakes");
     }
-    let started = std::time::Instant::now();
-    let state = AppState::with_methods(scenes, config.limits(), &Registry::standard(), &context)?
-        .with_admin_token(config.admin_token.clone())
-        .with_scene_files(paths);
-    tracing::info!(
-        ms = started.elapsed().as_millis() as u64,
-        bake_dir = %context.bake_dir.as_deref().map_or("none".into(), |d| d.display().to_string()),
-        "scenes prepared"
-    );
-    if config.rank_methods.unwrap_or(true) {
-        // Not joined: the server serves while it measures.
-        let _ = state.rank_in_background(
-            RankParams::default(),
-            context.bake_dir.as_ref().map(BakeCache::new),
-        );
-    }
+    // The server listens at once and loads its scenes after: an
+    // orchestrator sees it live (`/healthz/live`) while a big scene loads,
+    // and ready (`/healthz/ready`) once every scene is in.
+    let state =
+        AppState::with_methods(Vec::new(), config.limits(), &Registry::standard(), &context)?
+            .with_admin_token(config.admin_token.clone())
+            .with_replica(replica)
+            .with_scene_files(paths.clone());
+    let rank = config.rank_methods.unwrap_or(true);
+    state.readiness().loading(paths.len().max(1), rank);
     open_files_for(config.limits().connections.max_connections);
     let addr = args
         .addr
@@ -371,20 +365,90 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
+        let local = listener.local_addr()?;
+        let scheme = match (&config.tls_cert, &config.tls_key) {
+            (Some(_), Some(_)) => "https",
+            _ => "http",
+        };
+        tracing::info!("listening on {scheme}://{local} (loading scenes; not ready yet)");
+        let loading = {
+            let state = state.clone();
+            let bake_dir = context.bake_dir.clone();
+            tokio::task::spawn_blocking(move || load_scenes(&state, &paths, rank, bake_dir))
+        };
+        // A scene that cannot be loaded stops the server, as it always has:
+        // an operator (or an orchestrator's restart count) must see it.
+        let failure = Arc::new(std::sync::Mutex::new(None));
+        {
+            let (stop, failure) = (state.lifecycle().shutdown.clone(), failure.clone());
+            tokio::spawn(async move {
+                let error = match loading.await {
+                    Ok(Ok(())) => return,
+                    Ok(Err(e)) => e,
+                    Err(e) => anyhow::anyhow!("loading the scenes failed: {e}"),
+                };
+                *failure.lock().unwrap_or_else(|e| e.into_inner()) = Some(error);
+                stop.cancel();
+            });
+        }
         tokio::spawn(pvsd::server::reload_on_sighup(state.clone()));
+        let stopped = state.lifecycle().shutdown.clone();
+        let shutdown = async move {
+            tokio::select! {
+                () = shutdown_signal() => {},
+                () = stopped.cancelled() => {},
+            }
+        };
         match (&config.tls_cert, &config.tls_key) {
             (Some(cert), Some(key)) => {
                 let tls = pvsd::server::tls::acceptor(cert, key)?;
-                tracing::info!("listening on https://{}", listener.local_addr()?);
-                pvsd::server::run_tls(listener, state, tls, shutdown_signal()).await?;
+                pvsd::server::run_tls(listener, state, tls, shutdown).await?;
             }
-            _ => {
-                tracing::info!("listening on http://{}", listener.local_addr()?);
-                pvsd::server::run(listener, state, shutdown_signal()).await?;
-            }
+            _ => pvsd::server::run(listener, state, shutdown).await?,
         }
-        Ok(())
+        match failure.lock().unwrap_or_else(|e| e.into_inner()).take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
     })
+}
+
+/// Loads and prepares every scene file (the built-in city when there is
+/// none), ranks their methods for `auto` when `rank`, and then says the
+/// server is ready.
+fn load_scenes(
+    state: &AppState,
+    paths: &[PathBuf],
+    rank: bool,
+    bake_dir: Option<PathBuf>,
+) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    if paths.is_empty() {
+        tracing::info!("no --scene given: serving a generated city as 'city'");
+        state.add_scene(default_city()?)?;
+        state.readiness().scene_loaded();
+    }
+    for path in paths {
+        state.add_scene(load_scene(path)?)?;
+        state.readiness().scene_loaded();
+    }
+    tracing::info!(
+        ms = started.elapsed().as_millis() as u64,
+        bake_dir = %bake_dir.as_deref().map_or("none".into(), |d| d.display().to_string()),
+        "scenes prepared"
+    );
+    if rank {
+        // Joined: ready means ranked, so every replica's `auto` answers
+        // with the method its ranking picked from the first request on.
+        let _ = state
+            .rank_in_background(RankParams::default(), bake_dir.as_ref().map(BakeCache::new))
+            .join();
+    }
+    tracing::info!(
+        ms = started.elapsed().as_millis() as u64,
+        "ready: every scene is loaded"
+    );
+    Ok(())
 }
 
 /// Raises the soft limit on open files towards what `max_connections`

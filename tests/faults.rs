@@ -86,14 +86,21 @@ async fn clients_vanishing_mid_request_and_mid_frame_leave_nothing_behind() {
 }
 
 /// Session ids are capabilities: only the whole id drives a session; a
-/// prefix, another case, or a walkthrough's id is no session.
+/// prefix, another case, the same routing key with another secret, or a
+/// walkthrough's id is no session.
 #[tokio::test]
 async fn a_session_answers_only_to_its_whole_id() {
     let s = Server::with(vec![city_scene(10, 2, [0.0; 3])], Limits::default()).await;
     let c = reqwest::Client::new();
     let sid = new_session(&c, &s, json!({"scene": "city", "method": "horizon"})).await;
-    assert_eq!(sid.len(), 32);
-    assert!(sid.bytes().all(|b| b.is_ascii_hexdigit()));
+    // `<16 hex routing key>-<32 hex secret>` (proto/scale-out.md).
+    assert_eq!(sid.len(), 49);
+    assert_eq!(sid.as_bytes()[16], b'-');
+    assert!(
+        sid.bytes()
+            .filter(|&b| b != b'-')
+            .all(|b| b.is_ascii_hexdigit())
+    );
     let walkthrough: Value = c
         .post(s.url("/walkthroughs"))
         .body(r#"{"scene":"city","method":"frustum"}"#)
@@ -105,8 +112,9 @@ async fn a_session_answers_only_to_its_whole_id() {
         .unwrap();
     let wid = walkthrough["walkthrough"].as_str().unwrap().to_string();
     for guess in [
-        sid[..31].to_string(),
-        sid[..16].to_string(),
+        sid[..48].to_string(),
+        sid[..17].to_string(),
+        format!("{}{}", &sid[..17], "0".repeat(32)),
         sid.to_uppercase(),
         format!("{sid}0"),
         wid.clone(),

@@ -378,8 +378,13 @@ async fn unknown_and_deleted_sessions_are_404_expired_and_evicted_410() {
     let (st, v) = make().await;
     assert_eq!(st, StatusCode::CREATED);
     let sid = v["session"].as_str().unwrap().to_string();
-    assert_eq!(sid.len(), 32);
-    assert!(sid.chars().all(|c| c.is_ascii_hexdigit()));
+    let (key, secret) = sid.split_once('-').unwrap();
+    assert_eq!((key.len(), secret.len()), (16, 32));
+    assert!(
+        format!("{key}{secret}")
+            .chars()
+            .all(|c| c.is_ascii_hexdigit())
+    );
     assert_eq!(frame(sid.clone()).await.0, StatusCode::OK);
     let (st, _) = call(&state, "DELETE", &format!("/sessions/{sid}"), NO_BODY).await;
     assert_eq!(st, StatusCode::NO_CONTENT);

@@ -97,6 +97,12 @@ error_codes! {
     MessageTooLarge = "message_too_large",
     /// 422: the scene has no walk of this kind (no free space at eye height, no geometry).
     NoWalk = "no_walk",
+    /// 400: the `x-pvsd-route` header is not 16 lowercase hex digits.
+    InvalidRoute = "invalid_route",
+    /// 503: the replica is not ready: its scenes are still loading, or it is draining before it stops (`GET /healthz/ready`).
+    NotReady = "not_ready",
+    /// 503: the scene is configured but still loading; try again after `Retry-After` seconds.
+    SceneLoading = "scene_loading",
 }
 
 impl std::fmt::Display for ErrorCode {

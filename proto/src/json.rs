@@ -369,8 +369,9 @@ impl VisibleResponse {
 /// The answer of `POST /sessions`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct SessionCreated {
-    /// The session id: 128 random bits, 32 hex digits; whoever holds it
-    /// owns the session.
+    /// The session id, `<routing key>-<secret>`: 16 hex digits a load
+    /// balancer hashes on (`proto/scale-out.md`), `-`, then 128 random
+    /// bits as 32 hex digits; whoever holds it owns the session.
     pub session: String,
     /// The method that answers its frames (`auto` resolved).
     pub method: String,
@@ -425,8 +426,13 @@ pub struct WalkthroughCreated {
 pub struct UserJoined {
     /// The user's id, as others see it in `users_visible`.
     pub user: String,
-    /// The user's session: send its frames there.
+    /// The user's session: send its frames there. It carries the
+    /// walkthrough's routing key.
     pub session: String,
+    /// True when this join made the walkthrough again (it was lost): the
+    /// user may be the first one back.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub recreated: bool,
 }
 
 /// Where a user last stood (world coordinates).

@@ -42,6 +42,8 @@ use crate::error::ErrorBody;
         operations::viewer,
         operations::viewer_asset,
         operations::healthz,
+        operations::live,
+        operations::ready,
         operations::scenes,
         operations::objects,
         operations::object_mesh,
@@ -184,15 +186,29 @@ mod operations {
     #[derive(IntoParams)]
     #[into_params(parameter_in = Path)]
     struct SessionId {
-        /// A session id (32 hex digits, 128 random bits).
+        /// A session id, `<routing key>-<secret>`: 16 hex digits a load
+        /// balancer hashes on, `-`, 32 hex digits (128 random bits).
         sid: String,
+    }
+
+    /// The routing key a new session or walkthrough is minted on.
+    #[derive(IntoParams)]
+    #[into_params(parameter_in = Header)]
+    struct Route {
+        /// 16 lowercase hex digits; set by the load balancer in front of
+        /// several replicas (`proto/scale-out.md`), so that the new id
+        /// hashes back to the replica that made it. Without it the replica
+        /// draws one; malformed: 400 `invalid_route`.
+        #[param(rename = "x-pvsd-route")]
+        x_pvsd_route: Option<String>,
     }
 
     /// `{wid}`: a walkthrough.
     #[derive(IntoParams)]
     #[into_params(parameter_in = Path)]
     struct WalkthroughId {
-        /// A walkthrough id.
+        /// A walkthrough id, `<routing key>-<secret>` like a session's; its
+        /// users' sessions carry the same routing key.
         wid: String,
     }
 
@@ -220,6 +236,32 @@ mod operations {
         responses((status = 200, description = "The server runs", body = String, content_type = "text/plain"))
     )]
     fn healthz() {}
+
+    /// Liveness for orchestrators: 200 while the process serves, loading
+    /// or draining included (a failing probe means: restart it).
+    #[utoipa::path(
+        get,
+        path = "/healthz/live",
+        tag = "operations",
+        responses((status = 200, description = "The process serves", body = String, content_type = "text/plain"))
+    )]
+    fn live() {}
+
+    /// Readiness: 200 once every configured scene is loaded with its bakes
+    /// (and, when the server ranks methods, ranked for `auto`); 503
+    /// `not_ready` while loading and from the moment the server is told
+    /// to stop (it drains: it serves on for the drain period while load
+    /// balancers take it out, then closes).
+    #[utoipa::path(
+        get,
+        path = "/healthz/ready",
+        tag = "operations",
+        responses(
+            (status = 200, description = "Ready for traffic", body = String, content_type = "text/plain"),
+            (status = 503, description = "not_ready: loading scenes, or draining", body = ErrorBody),
+        )
+    )]
+    fn ready() {}
 
     /// Every loaded scene.
     ///
@@ -419,6 +461,7 @@ mod operations {
         post,
         path = "/sessions",
         tag = "sessions",
+        params(Route),
         request_body(
             content = SessionRequest,
             content_type = "application/json",
@@ -522,6 +565,7 @@ mod operations {
         post,
         path = "/walkthroughs",
         tag = "walkthroughs",
+        params(Route),
         request_body(
             content = SessionRequest,
             content_type = "application/json",
@@ -541,11 +585,21 @@ mod operations {
     /// Adds a user to a walkthrough.
     ///
     /// The user gets its own session, whose frames carry `users_visible`.
+    /// With a body naming the scene and method (as `POST /walkthroughs`
+    /// takes), a walkthrough this replica does not hold (lost with another
+    /// replica, or expired) is made again under the same id, and
+    /// `recreated` says so: users rejoining a lost walkthrough meet again
+    /// on the replica its id routes to (`proto/scale-out.md`).
     #[utoipa::path(
         post,
         path = "/walkthroughs/{wid}/users",
         tag = "walkthroughs",
         params(WalkthroughId),
+        request_body(
+            content = Option<SessionRequest>,
+            content_type = "application/json",
+            example = json!({"scene": "city", "method": "horizon"})
+        ),
         responses(
             (status = 201, description = "The user", body = UserJoined),
             (status = 404, response = Refused),

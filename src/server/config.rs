@@ -17,7 +17,9 @@
 //! max_connections = 10000        # past it, 503 overloaded
 //! header_timeout_ms = 10000      # to send a request's head; idle keep-alive
 //! body_timeout_ms = 10000        # to send a request's body (408 after)
-//! shutdown_grace_s = 10          # SIGTERM: time for requests in flight
+//! drain_ms = 0                   # SIGTERM: not ready, serving on this long
+//! shutdown_grace_s = 10          # then: time for requests in flight
+//! replica = "pvsd-0"             # names the replica (x-pvsd-replica header)
 //! json_max_depth = 16            # nesting of a JSON body (413 past it)
 //! json_max_array = 1024          # items of one JSON array (413 past it)
 //! rate_limit_per_s = 200.0       # requests a second per client IP (429
@@ -84,8 +86,14 @@ pub struct ServeConfig {
     pub header_timeout_ms: Option<u64>,
     /// Longest a client may take to send a request's body, ms.
     pub body_timeout_ms: Option<u64>,
+    /// How long the server, told to stop, serves on while answering
+    /// `/healthz/ready` with 503 (so load balancers take it out), ms.
+    pub drain_ms: Option<u64>,
     /// How long shutdown waits for requests in flight, seconds.
     pub shutdown_grace_s: Option<u64>,
+    /// This replica's name, sent in every answer's `x-pvsd-replica`
+    /// header (`--replica` or `PVSD_REPLICA` win over it).
+    pub replica: Option<String>,
     /// Most nested arrays and objects in a JSON body.
     pub json_max_depth: Option<usize>,
     /// Most items in one array of a JSON body.
@@ -102,6 +110,22 @@ pub struct ServeConfig {
     pub tls_cert: Option<PathBuf>,
     /// PEM private key of `tls_cert`.
     pub tls_key: Option<PathBuf>,
+}
+
+/// Checks a replica name: it travels in a header, so 1–64 characters of
+/// letters, digits, `-`, `_` and `.`.
+pub fn check_replica_name(name: &str) -> Result<(), String> {
+    let fits = (1..=64).contains(&name.len())
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.'));
+    if fits {
+        Ok(())
+    } else {
+        Err(format!(
+            "'{name}' is not 1-64 letters, digits, '-', '_' or '.'"
+        ))
+    }
 }
 
 /// A config file that could not be used.
@@ -199,6 +223,9 @@ impl ServeConfig {
                 "websocket_burst: set websocket_messages_per_s too (no rate, no limit)".into(),
             );
         }
+        if let Some(name) = &cfg.replica {
+            check_replica_name(name).map_err(|e| format!("replica: {e}"))?;
+        }
         if cfg.tls_cert.is_some() != cfg.tls_key.is_some() {
             return Err("tls_cert and tls_key: give both (HTTPS) or neither (HTTP)".into());
         }
@@ -243,6 +270,7 @@ impl ServeConfig {
                 max_connections: self.max_connections.unwrap_or(c.max_connections),
                 header_timeout: self.header_timeout_ms.map_or(c.header_timeout, ms),
                 body_timeout: self.body_timeout_ms.map_or(c.body_timeout, ms),
+                drain: self.drain_ms.map_or(c.drain, ms),
                 shutdown_grace: self
                     .shutdown_grace_s
                     .map_or(c.shutdown_grace, Duration::from_secs),
@@ -287,6 +315,26 @@ mod tests {
         let context = c.method_context();
         assert_eq!(context.bake_dir, Some(dir.path().join("bakes")));
         assert_eq!(context.disabled, vec!["horizon".to_string()]);
+    }
+
+    #[test]
+    fn drain_and_replica_name_are_read_and_checked() {
+        let c = ServeConfig::from_toml(
+            "drain_ms = 2500\nreplica = \"pvsd-7.a_b\"\n",
+            Path::new("."),
+        )
+        .unwrap();
+        assert_eq!(c.limits().connections.drain, Duration::from_millis(2500));
+        assert_eq!(c.replica.as_deref(), Some("pvsd-7.a_b"));
+        assert_eq!(
+            ServeConfig::default().limits().connections.drain,
+            Duration::ZERO
+        );
+        for bad in ["", "a b", "x\\ny", &"r".repeat(65)] {
+            let e = ServeConfig::from_toml(&format!("replica = {bad:?}\n"), Path::new("."))
+                .unwrap_err();
+            assert!(e.starts_with("replica:"), "{bad:?}: {e}");
+        }
     }
 
     #[test]

@@ -131,6 +131,15 @@ pub enum ApiError {
         /// The limit in force.
         max: usize,
     },
+    /// The routing key header is malformed.
+    #[error("{0}")]
+    InvalidRoute(String),
+    /// The replica is loading or draining (`GET /healthz/ready`).
+    #[error("{0}")]
+    NotReady(String),
+    /// The scene is configured but not loaded yet.
+    #[error("scene '{0}' is still loading; retry after 1 s")]
+    SceneLoading(String),
     /// A bug or an unexpected failure; details go to the log only.
     #[error("internal error")]
     Internal(String),
@@ -225,6 +234,9 @@ impl ApiError {
             ApiError::RateLimited { .. } => (StatusCode::TOO_MANY_REQUESTS, ErrorCode::RateLimited),
             ApiError::Overloaded { .. } => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::Overloaded),
             ApiError::Walk(_) => (StatusCode::UNPROCESSABLE_ENTITY, ErrorCode::NoWalk),
+            ApiError::InvalidRoute(_) => (StatusCode::BAD_REQUEST, ErrorCode::InvalidRoute),
+            ApiError::NotReady(_) => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::NotReady),
+            ApiError::SceneLoading(_) => (StatusCode::SERVICE_UNAVAILABLE, ErrorCode::SceneLoading),
             ApiError::Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Internal),
         }
     }
@@ -256,6 +268,11 @@ impl IntoResponse for ApiError {
                 response
                     .headers_mut()
                     .insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+            }
+            ApiError::SceneLoading(_) => {
+                response
+                    .headers_mut()
+                    .insert(header::RETRY_AFTER, HeaderValue::from(1));
             }
             ApiError::Overloaded { .. } => {
                 let headers = response.headers_mut();

@@ -14,7 +14,8 @@
 //!   timeout, applied where it is read (`extract`);
 //! - a TLS handshake must finish within the header timeout too.
 //!
-//! Shutdown: the listener stops accepting; connections finish the request
+//! Shutdown: the server drains first (not ready, still serving, for
+//! [`ConnectionLimits::drain`]); then the listener stops accepting; connections finish the request
 //! in flight and close; WebSockets get a close frame saying why
 //! (`ws`); whatever is still open after the grace period is dropped.
 
@@ -48,6 +49,10 @@ pub struct ConnectionLimits {
     pub header_timeout: Duration,
     /// Longest a client may take to send a request's body.
     pub body_timeout: Duration,
+    /// How long the server, told to stop, goes on serving while
+    /// `GET /healthz/ready` answers 503, so that load balancers stop
+    /// sending it work before it closes.
+    pub drain: Duration,
     /// How long shutdown waits for requests in flight and WebSockets.
     pub shutdown_grace: Duration,
 }
@@ -61,6 +66,8 @@ impl Default for ConnectionLimits {
             max_connections: 10_000,
             header_timeout: Duration::from_secs(10),
             body_timeout: Duration::from_secs(10),
+            // None by default: one server alone has no balancer to tell.
+            drain: Duration::ZERO,
             shutdown_grace: Duration::from_secs(10),
         }
     }
@@ -96,10 +103,25 @@ pub async fn serve(
             }
         });
     }
-    tokio::pin!(shutdown);
+    // Told to stop, the server first drains: `/healthz/ready` answers 503
+    // at once, and it goes on accepting and serving for the drain period,
+    // so that load balancers take it out before anything is refused.
+    let readiness = state.readiness().clone();
+    let drained = async move {
+        shutdown.await;
+        readiness.drain();
+        if !limits.drain.is_zero() {
+            tracing::info!(
+                drain_s = limits.drain.as_secs_f64(),
+                "draining: not ready; serving on while load balancers take this replica out"
+            );
+            tokio::time::sleep(limits.drain).await;
+        }
+    };
+    tokio::pin!(drained);
     loop {
         let (stream, peer) = tokio::select! {
-            () = &mut shutdown => break,
+            () = &mut drained => break,
             accepted = listener.accept() => match accepted {
                 Ok(accepted) => accepted,
                 Err(e) => {

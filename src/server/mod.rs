@@ -18,6 +18,7 @@ mod limit;
 mod listener;
 mod mesh;
 mod metrics;
+pub mod route;
 mod routes;
 pub mod session;
 mod state;
@@ -34,19 +35,21 @@ use axum::Router;
 use axum::error_handling::HandleErrorLayer;
 use axum::extract::DefaultBodyLimit;
 use axum::handler::Handler;
-use axum::http::Method;
+use axum::http::{HeaderValue, Method};
 use axum::routing::{MethodFilter, on};
 use tokio::net::TcpListener;
 use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
-use tower_http::trace::TraceLayer;
+use tower_http::trace::{DefaultOnFailure, TraceLayer};
 
 pub use error::ApiError;
 pub use extract::parse;
 pub use limit::{ClientRate, MessageRate};
 pub use listener::{ConnectionLimits, ConnectionSlot};
 pub use metrics::Metrics;
-pub use state::{AppState, DuplicateScene, JsonLimits, Lifecycle, Limits, Rate, SessionLimits};
+pub use state::{
+    AppState, DuplicateScene, JsonLimits, Lifecycle, Limits, Rate, Readiness, SessionLimits,
+};
 
 /// A router that remembers what it routes, so the OpenAPI document can be
 /// checked against the routes themselves.
@@ -78,6 +81,8 @@ fn routes() -> Routes {
     .add(Method::GET, "/viewer", viewer::page)
     .add(Method::GET, "/viewer/{file}", viewer::asset)
     .add(Method::GET, "/healthz", routes::healthz)
+    .add(Method::GET, "/healthz/live", routes::live)
+    .add(Method::GET, "/healthz/ready", routes::ready)
     .add(Method::GET, "/scenes", routes::scenes)
     .add(Method::GET, "/scenes/{id}/objects", routes::objects)
     .add(
@@ -117,7 +122,11 @@ pub fn route_table() -> Vec<(Method, &'static str)> {
 pub fn app(state: AppState) -> Router {
     let limits = state.limits();
     let timeout_state = state.clone();
-    routes()
+    // Which replica answered, for clients and load tests behind a proxy.
+    let replica = state
+        .replica()
+        .and_then(|name| HeaderValue::from_str(name).ok());
+    let router = routes()
         .router
         .fallback(routes::no_route)
         .method_not_allowed_fallback(routes::method_not_allowed)
@@ -140,9 +149,30 @@ pub fn app(state: AppState) -> Router {
             state.clone(),
             metrics::track,
         ))
-        .layer(TraceLayer::new_for_http())
-        .with_state(state)
+        // A 5xx is logged where it is made (`ApiError::body` logs internal
+        // errors); the trace layer's own error line would also fire for
+        // every `not_ready` a readiness probe gets while a replica loads.
+        .layer(
+            TraceLayer::new_for_http()
+                .on_failure(DefaultOnFailure::new().level(tracing::Level::DEBUG)),
+        )
+        .with_state(state);
+    match replica {
+        Some(name) => router.layer(axum::middleware::map_response(
+            move |mut response: axum::response::Response| {
+                let name = name.clone();
+                async move {
+                    response.headers_mut().insert(REPLICA_HEADER, name);
+                    response
+                }
+            },
+        )),
+        None => router,
+    }
 }
+
+/// The header naming the replica that answered (when it has a name).
+pub const REPLICA_HEADER: &str = "x-pvsd-replica";
 
 /// Serves `app(state)` on `listener` until `shutdown` resolves, then lets
 /// requests in flight finish within the grace period (`listener`).

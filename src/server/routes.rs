@@ -20,6 +20,7 @@ use pvsd_proto::xpvs as binary;
 
 use super::error::ApiError;
 use super::extract::{RawBody, parse};
+use super::route::RouteKey;
 use super::session::Session;
 use super::state::AppState;
 use super::wire::{BoundsExt, MoveRequestExt, ViewRequestExt, method_spec};
@@ -30,6 +31,21 @@ use crate::scene::MoveError;
 /// `GET /healthz`: 200 while the server runs.
 pub async fn healthz() -> &'static str {
     "ok"
+}
+
+/// `GET /healthz/live`: 200 while the process serves, loading and
+/// draining included; an orchestrator restarts a replica that stops
+/// answering it.
+pub async fn live() -> &'static str {
+    "live"
+}
+
+/// `GET /healthz/ready`: 200 once every configured scene is loaded (with
+/// its bakes and ranking); 503 `not_ready` while loading and while
+/// draining, so that load balancers send it nothing new.
+pub async fn ready(State(state): State<AppState>) -> Result<&'static str, ApiError> {
+    state.readiness().check()?;
+    Ok("ready")
 }
 
 /// `GET /scenes`: every scene with its size, bounds and methods.
@@ -249,17 +265,20 @@ fn scene_and_spec(
     Ok((methods, spec))
 }
 
-/// `POST /sessions`: a session of one scene and method.
+/// `POST /sessions`: a session of one scene and method, its id minted on
+/// the request's routing key ([`RouteKey::of_request`]).
 pub async fn create_session(
     State(state): State<AppState>,
+    headers: HeaderMap,
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<SessionCreated>), ApiError> {
+    let route = RouteKey::of_request(&headers)?;
     let (methods, spec) = scene_and_spec(&state, &body)?;
     let (method, cache) = prepare_client(&methods, &spec).await?;
     let name = method.name().to_string();
     let session = state
         .sessions()
-        .insert(Session::new(methods, method, cache, None));
+        .insert(Session::new(&route, methods, method, cache, None));
     Ok((
         StatusCode::CREATED,
         Json(SessionCreated {
@@ -339,15 +358,18 @@ pub async fn delete_session(
     Ok(StatusCode::NO_CONTENT)
 }
 
-/// `POST /walkthroughs`: a walkthrough of one scene and method.
+/// `POST /walkthroughs`: a walkthrough of one scene and method, its id
+/// minted on the request's routing key.
 pub async fn create_walkthrough(
     State(state): State<AppState>,
+    headers: HeaderMap,
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<WalkthroughCreated>), ApiError> {
+    let route = RouteKey::of_request(&headers)?;
     let (methods, spec) = scene_and_spec(&state, &body)?;
     // Refuse a bad method now rather than at the first user.
     let method = prepare_client(&methods, &spec).await?.0.name();
-    let w = state.walkthroughs().create(methods, spec, method);
+    let w = state.walkthroughs().create(&route, methods, spec, method);
     Ok((
         StatusCode::CREATED,
         Json(WalkthroughCreated {
@@ -357,23 +379,41 @@ pub async fn create_walkthrough(
     ))
 }
 
-/// `POST /walkthroughs/{wid}/users`: a new user, with its own session.
+/// `POST /walkthroughs/{wid}/users`: a new user, with its own session on
+/// the walkthrough's routing key. With a body (the scene and method, as
+/// `POST /walkthroughs` takes) a walkthrough this replica does not hold
+/// is made again under the same id: users rejoining a walkthrough lost
+/// with its replica meet again on the one its id routes to now.
 pub async fn join_walkthrough(
     State(state): State<AppState>,
     Path(wid): Path<String>,
+    RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<UserJoined>), ApiError> {
-    let w = state.walkthroughs().get(&wid)?;
+    let (w, recreated) = if body.iter().all(u8::is_ascii_whitespace) {
+        (state.walkthroughs().get(&wid)?, false)
+    } else {
+        let (methods, spec) = scene_and_spec(&state, &body)?;
+        let method = prepare_client(&methods, &spec).await?.0.name();
+        state
+            .walkthroughs()
+            .get_or_recreate(&wid, methods, spec, method)?
+    };
     let (method, cache) = prepare_client(&w.scene, &w.spec).await?;
     let user = w.join();
     let user_id = user.id.clone();
-    let session = state
-        .sessions()
-        .insert(Session::new(w.scene.clone(), method, cache, Some(user)));
+    let session = state.sessions().insert(Session::new(
+        &w.route,
+        w.scene.clone(),
+        method,
+        cache,
+        Some(user),
+    ));
     Ok((
         StatusCode::CREATED,
         Json(UserJoined {
             user: user_id,
             session: session.id.clone(),
+            recreated,
         }),
     ))
 }

@@ -21,32 +21,25 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use moka::notification::RemovalCause;
-use moka::ops::compute::Op;
-use moka::policy::EvictionPolicy;
-use moka::sync::Cache;
-use pvsd_proto::delta::{IdSet, diff};
-use pvsd_proto::json::FrameResponse;
-use rand::Rng;
-
 use super::error::ApiError;
 use super::metrics::Metrics;
+use super::route::RouteKey;
 use super::state::SessionLimits;
 use super::walkthrough::User;
 use crate::cull::{
     ClientCache, CullJob, CullStats, Culler, MethodOptions, MethodSpec, Occludees, SceneMethods,
     View, VisibleSet,
 };
+use moka::notification::RemovalCause;
+use moka::ops::compute::Op;
+use moka::policy::EvictionPolicy;
+use moka::sync::Cache;
+use pvsd_proto::delta::{IdSet, diff};
+use pvsd_proto::json::FrameResponse;
 
 /// Past frames a session keeps, so a client that lost answers can name an
 /// older base and still get a delta.
 pub const KEEP_FRAMES: usize = 4;
-
-/// A fresh id: 128 bits from the thread's CSPRNG (ChaCha, seeded by the
-/// OS), as 32 hex digits.
-pub fn random_id() -> String {
-    format!("{:032x}", rand::rng().random::<u128>())
-}
 
 /// One client's session.
 pub struct Session {
@@ -101,8 +94,10 @@ pub struct Answered {
 }
 
 impl Session {
-    /// A session of `method` (made for `scene` with `cache`).
+    /// A session of `method` (made for `scene` with `cache`), its id
+    /// minted on `route` ([`RouteKey`]).
     pub fn new(
+        route: &RouteKey,
         scene: Arc<SceneMethods>,
         method: Arc<dyn Culler>,
         cache: ClientCache,
@@ -121,7 +116,7 @@ impl Session {
         };
         frames.weighed = frames.bytes(&*method);
         Session {
-            id: random_id(),
+            id: route.mint(),
             scene,
             method,
             user,
@@ -149,7 +144,8 @@ impl Session {
         cache: ClientCache,
     ) -> Session {
         let next = self.frames.lock().await.next;
-        let mut session = Session::new(scene, method, cache, self.user.clone());
+        let route = RouteKey::of_id(&self.id).unwrap_or_else(RouteKey::random);
+        let mut session = Session::new(&route, scene, method, cache, self.user.clone());
         session.id = self.id.clone();
         session.frames.lock().await.next = next;
         session

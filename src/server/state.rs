@@ -6,6 +6,7 @@
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, Instant};
 
@@ -144,20 +145,100 @@ struct Shared {
     walkthroughs: Walkthroughs,
     /// The bearer token of routes that change scenes; none: they are off.
     admin_token: Option<String>,
+    /// This replica's name, sent as `x-pvsd-replica` on every answer.
+    replica: Option<String>,
     /// Connections and WebSockets, and the signal that ends them.
     lifecycle: Lifecycle,
     /// Each client's request rate, when limited.
     client_rate: Option<ClientRate>,
 }
 
-/// The server's connections and WebSockets as tasks, and the token that
-/// tells them the server is shutting down.
+/// The server's connections and WebSockets as tasks, the token that
+/// tells them the server is shutting down, and whether it is ready.
 #[derive(Clone, Default)]
 pub struct Lifecycle {
     /// Cancelled when the server begins to shut down.
     pub shutdown: CancellationToken,
     /// Every connection and WebSocket; shutdown waits for them.
     pub tasks: TaskTracker,
+    /// Whether load balancers should send the server traffic.
+    pub readiness: Readiness,
+}
+
+/// What `GET /healthz/ready` answers: ready once nothing is loading and
+/// the server is not draining. A state made over scenes already loaded is
+/// ready at once; `pvsd serve` listens first and loads after, counting
+/// what is left ([`Readiness::loading`]).
+#[derive(Clone, Default)]
+pub struct Readiness(Arc<ReadyState>);
+
+#[derive(Default)]
+struct ReadyState {
+    /// Scenes still to load and prepare.
+    scenes: AtomicUsize,
+    /// Scenes still to rank for `auto`.
+    ranking: AtomicUsize,
+    /// Told to stop: serving on only until load balancers notice.
+    draining: AtomicBool,
+}
+
+impl Readiness {
+    /// `scenes` are to be loaded and, when `ranked`, ranked, before the
+    /// server is ready.
+    pub fn loading(&self, scenes: usize, ranked: bool) {
+        self.0.scenes.store(scenes, Ordering::SeqCst);
+        self.0
+            .ranking
+            .store(if ranked { scenes } else { 0 }, Ordering::SeqCst);
+    }
+
+    /// One scene is loaded and prepared.
+    pub fn scene_loaded(&self) {
+        let _ = self
+            .0
+            .scenes
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1));
+    }
+
+    /// One scene is ranked.
+    pub fn scene_ranked(&self) {
+        let _ = self
+            .0
+            .ranking
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1));
+    }
+
+    /// The server was told to stop: not ready from now on.
+    pub fn drain(&self) {
+        self.0.draining.store(true, Ordering::SeqCst);
+    }
+
+    /// Whether the server is draining.
+    pub fn is_draining(&self) -> bool {
+        self.0.draining.load(Ordering::SeqCst)
+    }
+
+    /// Ok when ready; else `not_ready` saying what it waits for.
+    pub fn check(&self) -> Result<(), ApiError> {
+        if self.is_draining() {
+            return Err(ApiError::NotReady(
+                "draining: the server is shutting down and takes no new work".into(),
+            ));
+        }
+        let scenes = self.0.scenes.load(Ordering::SeqCst);
+        if scenes > 0 {
+            return Err(ApiError::NotReady(format!(
+                "loading: {scenes} scene(s) still loading"
+            )));
+        }
+        let ranking = self.0.ranking.load(Ordering::SeqCst);
+        if ranking > 0 {
+            return Err(ApiError::NotReady(format!(
+                "loading: {ranking} scene(s) still ranking their methods for auto"
+            )));
+        }
+        Ok(())
+    }
 }
 
 /// Two scenes with one id: ids must name one scene each.
@@ -210,6 +291,7 @@ impl AppState {
                 sessions,
                 walkthroughs,
                 admin_token: None,
+                replica: None,
                 lifecycle: Lifecycle::default(),
                 client_rate: limits.client_rate.map(ClientRate::new),
             }),
@@ -226,6 +308,23 @@ impl AppState {
             .expect("the admin token is set before the state is shared")
             .admin_token = token.filter(|t| !t.is_empty());
         self
+    }
+
+    /// This state naming its replica `name` in every answer's
+    /// `x-pvsd-replica` header (several replicas behind one proxy).
+    ///
+    /// # Panics
+    /// Once the state is shared (cloned): set it right after making it.
+    pub fn with_replica(mut self, name: Option<String>) -> AppState {
+        Arc::get_mut(&mut self.inner)
+            .expect("the replica name is set before the state is shared")
+            .replica = name;
+        self
+    }
+
+    /// This replica's name, if it has one.
+    pub fn replica(&self) -> Option<&str> {
+        self.inner.replica.as_deref()
     }
 
     /// Checks a request's `Authorization` header against the admin token:
@@ -271,7 +370,7 @@ impl AppState {
         cache: Option<BakeCache>,
     ) -> std::thread::JoinHandle<()> {
         *lock(&self.inner.reloading) = Some((params, cache.clone()));
-        rank_on_a_thread(self.scenes(), params, cache)
+        rank_on_a_thread(self.scenes(), params, cache, Some(self.readiness().clone()))
     }
 
     /// This state with the files its scenes were loaded from (a scene's id
@@ -341,9 +440,28 @@ impl AppState {
         if let Some((params, cache)) = ranking.clone()
             && !fresh.is_empty()
         {
-            let _ = rank_on_a_thread(fresh, params, cache);
+            let _ = rank_on_a_thread(fresh, params, cache, None);
         }
         report
+    }
+
+    /// Adds a scene loaded after the server started, with its methods
+    /// prepared (blocking: preparing takes seconds on a big scene).
+    pub fn add_scene(&self, scene: Arc<Scene>) -> Result<(), DuplicateScene> {
+        let shared = &*self.inner;
+        let id = scene.id.clone();
+        let methods = Arc::new(SceneMethods::prepare_with(
+            scene,
+            &shared.registry,
+            &shared.context,
+        ));
+        let mut scenes = write(&shared.scenes);
+        if scenes.contains_key(&id) {
+            return Err(DuplicateScene(id));
+        }
+        scenes.insert(id, methods);
+        shared.metrics.set_scenes(scenes.len());
+        Ok(())
     }
 
     /// Every scene, by id, as they are now.
@@ -355,13 +473,16 @@ impl AppState {
     /// ones.
     pub fn scene(&self, id: &str) -> Result<Arc<SceneMethods>, ApiError> {
         let scenes = read(&self.inner.scenes);
-        scenes
-            .get(id)
-            .cloned()
-            .ok_or_else(|| ApiError::UnknownScene {
-                id: id.to_string(),
-                loaded: scenes.keys().cloned().collect(),
-            })
+        scenes.get(id).cloned().ok_or_else(|| {
+            if self.inner.files.contains_key(id) {
+                ApiError::SceneLoading(id.to_string())
+            } else {
+                ApiError::UnknownScene {
+                    id: id.to_string(),
+                    loaded: scenes.keys().cloned().collect(),
+                }
+            }
+        })
     }
 
     /// The metrics.
@@ -382,6 +503,11 @@ impl AppState {
     /// The server's connections and its shutdown signal.
     pub fn lifecycle(&self) -> &Lifecycle {
         &self.inner.lifecycle
+    }
+
+    /// Whether the server is ready for traffic.
+    pub fn readiness(&self) -> &Readiness {
+        &self.inner.lifecycle.readiness
     }
 
     /// Each client's request rate, when the config limits it.
@@ -406,6 +532,7 @@ fn rank_on_a_thread(
     scenes: Vec<Arc<SceneMethods>>,
     params: RankParams,
     cache: Option<BakeCache>,
+    readiness: Option<Readiness>,
 ) -> std::thread::JoinHandle<()> {
     std::thread::Builder::new()
         .name("pvsd-rank".into())
@@ -419,6 +546,9 @@ fn rank_on_a_thread(
                     released = ?released,
                     "ranked; methods no client asked for are released until asked"
                 );
+                if let Some(r) = &readiness {
+                    r.scene_ranked();
+                }
             }
         })
         .expect("a thread can be started")

@@ -14,8 +14,10 @@ use glam::DVec3;
 use moka::sync::Cache;
 use pvsd_proto::json::{Pose, UserInfo, WalkthroughInfo};
 
+use rand::Rng;
+
 use super::error::ApiError;
-use super::session::random_id;
+use super::route::RouteKey;
 use crate::cull::{MethodSpec, SceneMethods};
 use crate::geom::{Aabb, Camera};
 
@@ -37,8 +39,11 @@ pub fn avatar(eye: DVec3, origin: DVec3) -> Aabb {
 
 /// A walkthrough: a scene, a method and the users in it.
 pub struct Walkthrough {
-    /// Its id.
+    /// Its id (minted on `route`).
     pub id: String,
+    /// The routing key of its id, which its users' sessions are minted on
+    /// so that their frames reach the replica that holds it.
+    pub route: RouteKey,
     /// The scene.
     pub scene: Arc<SceneMethods>,
     /// The method (with options) every user's session gets.
@@ -64,9 +69,27 @@ pub struct User {
 }
 
 impl Walkthrough {
+    fn new(
+        id: String,
+        route: RouteKey,
+        scene: Arc<SceneMethods>,
+        spec: MethodSpec,
+        method: &'static str,
+    ) -> Walkthrough {
+        Walkthrough {
+            id,
+            route,
+            scene,
+            spec,
+            method,
+            users: Mutex::new(BTreeMap::new()),
+        }
+    }
+
     /// Adds a user with no pose yet.
     pub fn join(self: &Arc<Self>) -> User {
-        let id = random_id();
+        // Shown to the other users (`users_visible`), so no session's id.
+        let id = format!("{:032x}", rand::rng().random::<u128>());
         self.lock().insert(id.clone(), Presence::default());
         User {
             walkthrough: self.clone(),
@@ -144,22 +167,45 @@ impl Walkthroughs {
         }
     }
 
-    /// A new walkthrough of `scene` with `spec`.
+    /// A new walkthrough of `scene` with `spec`, its id minted on `route`.
     pub fn create(
         &self,
+        route: &RouteKey,
         scene: Arc<SceneMethods>,
         spec: MethodSpec,
         method: &'static str,
     ) -> Arc<Walkthrough> {
-        let w = Arc::new(Walkthrough {
-            id: random_id(),
+        let w = Arc::new(Walkthrough::new(
+            route.mint(),
+            route.clone(),
             scene,
             spec,
             method,
-            users: Mutex::new(BTreeMap::new()),
-        });
+        ));
         self.live.insert(w.id.clone(), w.clone());
         w
+    }
+
+    /// The walkthrough `id` as it is, or, when this replica does not hold
+    /// it (it was lost with another replica, or expired), a new one under
+    /// the same id, of `scene` with `spec`: users rejoining a lost
+    /// walkthrough all reach the replica its id routes to, and meet again
+    /// there. Also whether it was made now. 404 `unknown_walkthrough` for
+    /// an id no replica could have minted.
+    pub fn get_or_recreate(
+        &self,
+        id: &str,
+        scene: Arc<SceneMethods>,
+        spec: MethodSpec,
+        method: &'static str,
+    ) -> Result<(Arc<Walkthrough>, bool), ApiError> {
+        let route =
+            RouteKey::of_id(id).ok_or_else(|| ApiError::UnknownWalkthrough(id.to_string()))?;
+        let entry = self.live.entry(id.to_string()).or_insert_with(|| {
+            tracing::info!(walkthrough = %id, "a lost walkthrough made again as its users rejoin");
+            Arc::new(Walkthrough::new(id.to_string(), route, scene, spec, method))
+        });
+        Ok((entry.value().clone(), entry.is_fresh()))
     }
 
     /// The walkthrough `id`, now used.

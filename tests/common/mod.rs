@@ -344,8 +344,9 @@ pub fn gpu_or_skip(test: &str) -> Option<Arc<pvsd::cull::gpu::Gpu>> {
 
 /// Starts `pvsd serve --addr 127.0.0.1:0` with `args` more and `envs` set
 /// (logging at info; the user's cache folder moved to a scratch one unless
-/// `envs` says otherwise); returns the child, the address its "listening
-/// on" line gives, and the log lines before it. The caller stops the child.
+/// `envs` says otherwise) and waits until it is ready (its scenes loaded);
+/// returns the child, the address its "listening on" line gives, and the
+/// log lines until "ready". The caller stops the child.
 pub fn spawn_serve(
     args: &[&str],
     envs: &[(&str, &str)],
@@ -368,14 +369,20 @@ pub fn spawn_serve(
     let mut lines = BufReader::new(child.stderr.take().unwrap()).lines();
     let deadline = Instant::now() + Duration::from_secs(60);
     let mut before = Vec::new();
-    let addr = loop {
-        assert!(Instant::now() < deadline, "no 'listening on' line");
+    let mut addr = None;
+    loop {
+        assert!(Instant::now() < deadline, "no 'ready' line");
         let line = lines.next().expect("server exited early").unwrap();
         if let Some(rest) = line.split("listening on http://").nth(1) {
-            break rest.trim().to_string();
+            addr = rest.split_whitespace().next().map(str::to_string);
         }
+        let ready = line.contains("ready: every scene is loaded");
         before.push(line);
-    };
+        if ready {
+            break;
+        }
+    }
+    let addr = addr.expect("a 'listening on' line before 'ready'");
     // Keep draining its log so it never blocks on a full pipe.
     std::thread::spawn(move || lines.for_each(drop));
     (child, addr, before)
