@@ -8,12 +8,12 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
-use pvsd_proto::json::{Bounds, FrameResponse, SessionCreated};
+use pvsd_proto::json::{Bounds, FrameResponse, SessionCreated, UserJoined};
 use pvsd_proto::xpvs::{self, Message as PvsMessage};
 use serde_json::{Map, Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
-use crate::stats::Recorder;
+use crate::stats::{Recorder, UserRecorder};
 use crate::walk::{Walk, WalkKind};
 
 /// How frames are asked for.
@@ -26,6 +26,10 @@ pub enum Mode {
     Stateless,
     /// `GET /sessions/{sid}/ws`: deltas over a WebSocket.
     Ws,
+    /// Users in walkthroughs of `--group` users each, following one
+    /// another along one path, frames by `POST /sessions/{sid}/frames`;
+    /// `users_visible` is counted.
+    Walkthrough,
 }
 
 /// What every user does.
@@ -38,8 +42,12 @@ pub struct Plan {
     pub method: String,
     /// Method options.
     pub options: Map<String, Value>,
-    /// How to ask.
-    pub mode: Mode,
+    /// How each user asks: user `u` takes `modes[u % modes.len()]`.
+    pub modes: Vec<Mode>,
+    /// Walkthrough mode: the walkthroughs, one per group of users.
+    pub walkthroughs: Vec<String>,
+    /// Walkthrough mode: users per walkthrough.
+    pub group: u32,
     /// Frames a second per user (open loop), or `None` (closed loop).
     pub rate: Option<f64>,
     /// Open loop: requests a user has in flight at most.
@@ -55,6 +63,56 @@ pub struct Plan {
     pub bounds: Bounds,
     /// When to stop sending.
     pub end: Instant,
+}
+
+impl Plan {
+    /// How user `u` asks.
+    pub fn mode(&self, u: u32) -> Mode {
+        self.modes[u as usize % self.modes.len()]
+    }
+
+    /// Walkthrough mode: user `u`'s walkthrough and place in it.
+    fn walkthrough_of(&self, u: u32) -> Option<(&str, u32)> {
+        if self.mode(u) != Mode::Walkthrough {
+            return None;
+        }
+        let nth = (0..u)
+            .filter(|&v| self.mode(v) == Mode::Walkthrough)
+            .count() as u32;
+        let wid = self.walkthroughs.get((nth / self.group) as usize)?;
+        Some((wid, nth % self.group))
+    }
+
+    /// Walkthroughs needed for `users` users.
+    pub fn groups(modes: &[Mode], users: u32, group: u32) -> u32 {
+        let walkers = (0..users)
+            .filter(|&u| modes[u as usize % modes.len()] == Mode::Walkthrough)
+            .count() as u32;
+        walkers.div_ceil(group)
+    }
+}
+
+/// The body that makes a session or a walkthrough (and remakes a lost
+/// walkthrough when a user rejoins it).
+fn session_body(plan: &Plan) -> Value {
+    json!({"scene": plan.scene, "method": plan.method, "options": plan.options})
+}
+
+/// Makes a walkthrough of the plan's scene and method; its id.
+pub async fn create_walkthrough(plan: &Plan, http: &reqwest::Client) -> anyhow::Result<String> {
+    let res = http
+        .post(format!("{}/walkthroughs", plan.target))
+        .json(&session_body(plan))
+        .send()
+        .await?;
+    anyhow::ensure!(
+        res.status().is_success(),
+        "POST /walkthroughs answered {}: {}",
+        res.status(),
+        res.text().await.unwrap_or_default()
+    );
+    let made: pvsd_proto::json::WalkthroughCreated = res.json().await?;
+    Ok(made.walkthrough)
 }
 
 /// `occlusion_tree:k=32` → (`occlusion_tree`, `{"k": "32"}`).
@@ -148,16 +206,39 @@ fn view(pose: ([f64; 3], [f64; 3]), extra: &str) -> String {
 
 /// Runs user `u` until the plan's end.
 pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recorder>) {
-    let walk = Walk::new(plan.walk, &plan.bounds, u64::from(u) + 1, plan.step);
-    let session = match plan.mode {
-        Mode::Stateless => None,
-        Mode::Session | Mode::Ws => match create_session(&plan, &http).await {
-            Ok(sid) => Some(Arc::new(SessionLink::new(&plan, sid))),
-            Err(kind) => {
-                rec.error(kind);
-                return;
+    let mode = plan.mode(u);
+    let rec = UserRecorder::new(rec, u, mode);
+    // A walkthrough's users walk one path, each `LAG` frames behind the
+    // next: the ones behind see the ones ahead.
+    const LAG: u32 = 4;
+    let walkthrough = plan.walkthrough_of(u);
+    let walk = match walkthrough {
+        Some((wid, place)) => {
+            let seed =
+                1 + u64::from(plan.walkthroughs.iter().position(|w| w == wid).unwrap_or(0) as u32);
+            let mut walk = Walk::new(plan.walk, &plan.bounds, 10_000 + seed, plan.step);
+            for _ in 0..place * LAG {
+                walk.next_pose();
             }
-        },
+            walk
+        }
+        None => Walk::new(plan.walk, &plan.bounds, u64::from(u) + 1, plan.step),
+    };
+    let origin = match walkthrough {
+        Some((wid, _)) => Origin::Walkthrough(wid.to_string()),
+        None => Origin::Session,
+    };
+    let session = match mode {
+        Mode::Stateless => None,
+        Mode::Session | Mode::Ws | Mode::Walkthrough => {
+            match origin.create(&plan, &http, &rec).await {
+                Ok(sid) => Some(Arc::new(SessionLink::new(&plan, origin, sid))),
+                Err(kind) => {
+                    rec.error(kind);
+                    return;
+                }
+            }
+        }
     };
     // Open loop: users keep the same rate at different phases, spread by
     // the golden ratio, as independent clients are; in step, all of them
@@ -166,8 +247,8 @@ pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recor
         .rate
         .map_or(0.0, |r| (f64::from(u) * 0.618_033_988_75).fract() / r);
     let start = Instant::now() + Duration::from_secs_f64(phase);
-    match (plan.mode, &session) {
-        (Mode::Ws, Some(link)) => ws_user(&plan, &link.sid(), walk, start, &rec).await,
+    match (mode, &session) {
+        (Mode::Ws, Some(link)) => ws_user(&plan, link, walk, start, &http, &rec).await,
         _ => http_user(&plan, session.clone(), walk, start, &http, &rec).await,
     }
     if let Some(link) = session {
@@ -178,12 +259,58 @@ pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recor
     }
 }
 
+/// Where a user's sessions come from.
+enum Origin {
+    /// `POST /sessions`.
+    Session,
+    /// `POST /walkthroughs/{wid}/users`, with the scene and method so that
+    /// a walkthrough lost with its replica is made again.
+    Walkthrough(String),
+}
+
+impl Origin {
+    /// A new session; notes the replica that made it.
+    async fn create(
+        &self,
+        plan: &Plan,
+        http: &reqwest::Client,
+        rec: &UserRecorder,
+    ) -> Result<String, &'static str> {
+        let url = match self {
+            Origin::Session => format!("{}/sessions", plan.target),
+            Origin::Walkthrough(wid) => format!("{}/walkthroughs/{wid}/users", plan.target),
+        };
+        let res = http
+            .post(url)
+            .json(&session_body(plan))
+            .send()
+            .await
+            .map_err(|_| "create_session")?;
+        if !res.status().is_success() {
+            return Err("create_session");
+        }
+        rec.replica(res.headers());
+        let sid = match self {
+            Origin::Session => {
+                let created: SessionCreated = res.json().await.map_err(|_| "create_session")?;
+                created.session
+            }
+            Origin::Walkthrough(_) => {
+                let joined: UserJoined = res.json().await.map_err(|_| "create_session")?;
+                joined.session
+            }
+        };
+        Ok(sid)
+    }
+}
+
 /// A user's session, made again when the server has lost it: pvsd's
-/// sessions are soft state (`proto/wire-format.md`, "Sessions are soft
-/// state"), so a frame answered `404 unknown_session`, `410`, or not at
-/// all (the server restarted) means: make a new session and go on; its
-/// first frame is the whole set.
+/// sessions are soft state (`proto/scale-out.md`), so a frame answered
+/// `404 unknown_session`, `410`, a proxy's `502`/`504`, or not at all
+/// (the replica is gone) means: make a new session (or rejoin the
+/// walkthrough) and go on; its first frame is the whole set.
 struct SessionLink {
+    origin: Origin,
     /// The session's generation (0 for the first) and its frames' URL.
     current: Mutex<(u64, String, reqwest::Url)>,
     /// One renewal at a time, and not more often than every 100 ms while
@@ -192,9 +319,10 @@ struct SessionLink {
 }
 
 impl SessionLink {
-    fn new(plan: &Plan, sid: String) -> SessionLink {
+    fn new(plan: &Plan, origin: Origin, sid: String) -> SessionLink {
         let url = Self::frames_url(plan, &sid);
         SessionLink {
+            origin,
             current: Mutex::new((0, sid, url)),
             renewing: tokio::sync::Mutex::new(None),
         }
@@ -217,14 +345,20 @@ impl SessionLink {
 
     /// Ends the session and makes a new one, as a user leaving and another
     /// joining would; the user's held set starts over.
-    async fn churn(&self, plan: &Plan, http: &reqwest::Client, held: &Mutex<Held>, rec: &Recorder) {
+    async fn churn(
+        &self,
+        plan: &Plan,
+        http: &reqwest::Client,
+        held: &Mutex<Held>,
+        rec: &UserRecorder,
+    ) {
         let _guard = self.renewing.lock().await;
         let old = self.sid();
         let _ = http
             .delete(format!("{}/sessions/{old}", plan.target))
             .send()
             .await;
-        match create_session(plan, http).await {
+        match self.origin.create(plan, http, rec).await {
             Ok(sid) => {
                 let url = Self::frames_url(plan, &sid);
                 let mut c = self.current.lock().unwrap();
@@ -237,44 +371,33 @@ impl SessionLink {
     }
 
     /// Makes a new session if generation `seen` is still the current one;
-    /// the user's held set starts over.
+    /// the user's held set starts over. True when the current session is
+    /// newer than `seen` afterwards.
     async fn renew(
         &self,
         seen: u64,
         plan: &Plan,
         http: &reqwest::Client,
         held: &Mutex<Held>,
-        rec: &Recorder,
-    ) {
+        rec: &UserRecorder,
+    ) -> bool {
         let mut last = self.renewing.lock().await;
-        if self.current.lock().unwrap().0 != seen
-            || last.is_some_and(|t| t.elapsed() < Duration::from_millis(100))
-        {
-            return;
+        if self.current.lock().unwrap().0 != seen {
+            return true;
+        }
+        if last.is_some_and(|t| t.elapsed() < Duration::from_millis(100)) {
+            return false;
         }
         *last = Some(Instant::now());
-        if let Ok(sid) = create_session(plan, http).await {
-            let url = Self::frames_url(plan, &sid);
-            *self.current.lock().unwrap() = (seen + 1, sid, url);
-            *held.lock().unwrap() = Held::default();
-            rec.reconnect();
-        }
+        let Ok(sid) = self.origin.create(plan, http, rec).await else {
+            return false;
+        };
+        let url = Self::frames_url(plan, &sid);
+        *self.current.lock().unwrap() = (seen + 1, sid, url);
+        *held.lock().unwrap() = Held::default();
+        rec.reconnect();
+        true
     }
-}
-
-async fn create_session(plan: &Plan, http: &reqwest::Client) -> Result<String, &'static str> {
-    let body = json!({"scene": plan.scene, "method": plan.method, "options": plan.options});
-    let res = http
-        .post(format!("{}/sessions", plan.target))
-        .json(&body)
-        .send()
-        .await
-        .map_err(|_| "create_session")?;
-    if !res.status().is_success() {
-        return Err("create_session");
-    }
-    let created: SessionCreated = res.json().await.map_err(|_| "create_session")?;
-    Ok(created.session)
 }
 
 /// When frame `k` is due: on the schedule (open loop) or now (closed);
@@ -291,13 +414,22 @@ async fn due(plan: &Plan, start: Instant, k: u64) -> Option<Instant> {
     (due < plan.end).then_some(due)
 }
 
+/// Whether a failed frame means its session (or the replica holding it)
+/// is gone, which a new session mends: soft state, not an error.
+fn session_lost(kind: &str) -> bool {
+    matches!(
+        kind,
+        "http_404" | "http_410" | "http_502" | "http_504" | "connect" | "read" | "ws_closed"
+    )
+}
+
 async fn http_user(
     plan: &Arc<Plan>,
     session: Option<Arc<SessionLink>>,
     mut walk: Walk,
     start: Instant,
     http: &reqwest::Client,
-    rec: &Arc<Recorder>,
+    rec: &UserRecorder,
 ) {
     // Parsed once: reqwest would parse a string on every request.
     let Ok(stateless) =
@@ -367,7 +499,10 @@ async fn http_user(
                 .header("content-type", "application/json")
                 .body(body);
             let answer = match request.send().await {
-                Ok(res) if res.status().is_success() => res.bytes().await.map_err(|_| "read"),
+                Ok(res) if res.status().is_success() => {
+                    rec.replica(res.headers());
+                    res.bytes().await.map_err(|_| "read")
+                }
                 Ok(res) => Err(status_kind(res.status().as_u16())),
                 Err(e) if e.is_timeout() => Err("timeout"),
                 Err(_) => Err("connect"),
@@ -377,21 +512,20 @@ async fn http_user(
             let stale = || session.as_ref().is_some_and(|s| s.url().0 != generation);
             let checked = answer.and_then(|b| {
                 if stale() {
-                    return Ok(b.len());
+                    return Ok((b.len(), 0));
                 }
-                check(&b, session.is_some(), &held).map(|()| b.len())
+                check(&b, session.is_some(), &held).map(|users| (b.len(), users))
             });
             match checked {
-                Ok(n) => rec.ok(due.elapsed(), sent, n),
-                Err(kind) => {
-                    rec.error(kind);
-                    if let Some(link) = &session
-                        && matches!(kind, "http_404" | "http_410" | "connect" | "read")
-                    {
+                Ok((n, users)) => rec.ok(due.elapsed(), sent, n, users),
+                Err(kind) => match &session {
+                    Some(link) if session_lost(kind) => {
+                        rec.lost(kind);
                         link.renew(generation, &shared_plan, &http, &held, &rec)
                             .await;
                     }
-                }
+                    _ => rec.error(kind),
+                },
             }
         };
         if plan.rate.is_some() {
@@ -412,29 +546,80 @@ fn status_kind(status: u16) -> &'static str {
         410 => "http_410",
         400..=499 => "http_4xx",
         300..=399 => "http_3xx",
+        502 => "http_502",
         503 => "http_503",
+        504 => "http_504",
         _ => "http_5xx",
     }
 }
 
-/// Decodes an answer and, for a session, applies it.
-fn check(bytes: &[u8], session: bool, held: &Mutex<Held>) -> Result<(), &'static str> {
+/// Decodes an answer and, for a session, applies it; the number of other
+/// users it says are visible (walkthroughs).
+fn check(bytes: &[u8], session: bool, held: &Mutex<Held>) -> Result<usize, &'static str> {
     match (xpvs::decode(bytes).map_err(|_| "decode")?, session) {
-        (PvsMessage::Frame(f), true) => held.lock().unwrap().apply(&f),
-        (PvsMessage::Visible(_), false) => Ok(()),
+        (PvsMessage::Frame(f), true) => held
+            .lock()
+            .unwrap()
+            .apply(&f)
+            .map(|()| f.users_visible.as_ref().map_or(0, Vec::len)),
+        (PvsMessage::Visible(_), false) => Ok(0),
         _ => Err("decode"),
     }
 }
 
-async fn ws_user(plan: &Arc<Plan>, sid: &str, mut walk: Walk, start: Instant, rec: &Arc<Recorder>) {
-    let url = format!(
-        "{}/sessions/{sid}/ws?encoding=x-pvs",
-        plan.target.replacen("http", "ws", 1)
-    );
-    let Ok((socket, _)) = tokio_tungstenite::connect_async(&url).await else {
-        rec.error("connect");
-        return;
-    };
+/// A WebSocket user: a socket on its session; when the socket dies (the
+/// replica went away) the frames on it are lost, and the user makes a new
+/// session and a new socket and walks on.
+async fn ws_user(
+    plan: &Arc<Plan>,
+    link: &SessionLink,
+    mut walk: Walk,
+    start: Instant,
+    http: &reqwest::Client,
+    rec: &UserRecorder,
+) {
+    let mut k = 0;
+    let held = Mutex::new(Held::default());
+    loop {
+        let (generation, _) = link.url();
+        let url = format!(
+            "{}/sessions/{}/ws?encoding=x-pvs",
+            plan.target.replacen("http", "ws", 1),
+            link.sid()
+        );
+        match tokio_tungstenite::connect_async(&url).await {
+            Ok((socket, response)) => {
+                rec.replica(response.headers());
+                let ended = ws_frames(plan, socket, &mut walk, start, &mut k, rec).await;
+                if ended {
+                    return;
+                }
+            }
+            Err(_) => rec.lost("connect"),
+        }
+        // The socket died before the run's end: a new session, a new
+        // socket (retried while the server is away, until the end).
+        while !link.renew(generation, plan, http, &held, rec).await {
+            if Instant::now() >= plan.end {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    }
+}
+
+/// Walks on one socket from frame `k` until the run's end (true) or until
+/// the socket dies (false, its unanswered frames counted lost).
+async fn ws_frames(
+    plan: &Arc<Plan>,
+    socket: tokio_tungstenite::WebSocketStream<
+        tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>,
+    >,
+    walk: &mut Walk,
+    start: Instant,
+    k: &mut u64,
+    rec: &UserRecorder,
+) -> bool {
     let (mut tx, mut rx) = socket.split();
     // Due times of frames sent and not yet answered, in order: the server
     // answers a socket's frames in the order they were sent.
@@ -444,6 +629,7 @@ async fn ws_user(plan: &Arc<Plan>, sid: &str, mut walk: Walk, start: Instant, re
     let reader = {
         let rec = rec.clone();
         tokio::spawn(async move {
+            // A new socket is a new session: its first frame is whole.
             let held = Mutex::new(Held::default());
             while let Some((due, sent)) = dues_rx.recv().await {
                 let got = tokio::time::timeout(Duration::from_secs(30), rx.next()).await;
@@ -451,42 +637,56 @@ async fn ws_user(plan: &Arc<Plan>, sid: &str, mut walk: Walk, start: Instant, re
                     Ok(Some(Ok(Message::Binary(b)))) => Some(b),
                     Ok(Some(Ok(_))) => None,
                     Ok(_) => {
-                        rec.error("ws_closed");
-                        return;
+                        // This frame and every one queued behind it.
+                        rec.lost("ws_closed");
+                        while dues_rx.try_recv().is_ok() {
+                            rec.lost("ws_closed");
+                        }
+                        return false;
                     }
                     Err(_) => {
                         rec.error("timeout");
-                        return;
+                        return false;
                     }
                 };
                 match bytes
                     .ok_or("ws_error_message")
-                    .and_then(|b| check(&b, true, &held).map(|()| b.len()))
+                    .and_then(|b| check(&b, true, &held).map(|users| (b.len(), users)))
                 {
-                    Ok(n) => rec.ok(due.elapsed(), sent, n),
+                    Ok((n, users)) => rec.ok(due.elapsed(), sent, n, users),
                     Err(kind) => rec.error(kind),
                 }
                 let _ = answered_tx.try_send(());
             }
+            true
         })
     };
-    for k in 0.. {
-        let Some(due) = due(plan, start, k).await else {
+    let mut ended = true;
+    loop {
+        let Some(due) = due(plan, start, *k).await else {
             break;
         };
         let text = view(walk.next_pose(), "");
         let sent = text.len();
         // Queued before it is sent, so a fast answer finds its due time.
-        if dues_tx.send((due, sent)).is_err() || tx.send(Message::text(text)).await.is_err() {
+        if dues_tx.send((due, sent)).is_err() {
+            ended = false;
+            break;
+        }
+        *k += 1;
+        if tx.send(Message::text(text)).await.is_err() {
+            ended = false;
             break;
         }
         if plan.rate.is_none() && answered_rx.recv().await.is_none() {
+            ended = false;
             break;
         }
     }
     drop(dues_tx);
-    let _ = reader.await;
+    let read_all = reader.await.unwrap_or(false);
     let _ = tx.close().await;
+    ended && read_all || Instant::now() >= plan.end
 }
 
 #[cfg(test)]

@@ -2,9 +2,13 @@
 //! smooth path through a scene (made from the scene's bounds in `GET
 //! /scenes`) and asks for each frame's visible set: through a session and
 //! its deltas (`--mode session`, the default), statelessly
-//! (`--mode stateless`), or over a session's WebSocket (`--mode ws`). It
-//! rebuilds the visible set from the answers and counts any answer that
-//! does not decode or does not chain as an error.
+//! (`--mode stateless`), over a session's WebSocket (`--mode ws`), or as
+//! users of shared walkthroughs (`--mode walkthrough`); `--mode
+//! session,ws,walkthrough` mixes them. It rebuilds the visible set from the
+//! answers and counts any answer that does not decode or does not chain as
+//! an error. A session the server lost (a replica gone) is made again and
+//! counted: frames lost, reconnects, per user and, with `--marks`, per
+//! phase of the run (`proto/scale-out.md`).
 //!
 //! Without `--rate` each user sends its next frame when the last answer is
 //! in (closed loop: measures capacity). With `--rate R` each user sends R
@@ -55,9 +59,18 @@ struct Args {
     /// most; later frames queue in the user and count their wait.
     #[arg(long, default_value_t = 4)]
     max_in_flight: usize,
-    /// How frames are asked for.
-    #[arg(long, value_enum, default_value_t = Mode::Session)]
-    mode: Mode,
+    /// How frames are asked for; several, comma-separated, are dealt to
+    /// the users in turn.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "session")]
+    mode: Vec<Mode>,
+    /// Walkthrough mode: users per walkthrough.
+    #[arg(long, default_value_t = 4)]
+    group: u32,
+    /// A file of marks written while the run goes on, one `<unix ms>
+    /// <label>` a line (e.g. when a replica was killed): the report splits
+    /// the run into phases at them.
+    #[arg(long)]
+    marks: Option<PathBuf>,
     /// The kind of path each user walks.
     #[arg(long, value_enum, default_value_t = WalkKind::Street)]
     walk: WalkKind,
@@ -81,6 +94,9 @@ fn main() -> anyhow::Result<()> {
     }
     if args.max_in_flight == 0 {
         bail!("--max-in-flight must be at least 1");
+    }
+    if args.group == 0 {
+        bail!("--group must be at least 1");
     }
     if args.rate.is_some_and(|r| !positive(r)) {
         bail!("--rate must be a number of frames per second > 0");
@@ -129,15 +145,18 @@ async fn run(args: Args) -> anyhow::Result<()> {
         .clone()
         .with_context(|| format!("scene '{}' has no geometry to walk through", scene.id))?;
     let (method, options) = client::method_json(&args.method);
-    let recorder = Arc::new(Recorder::new());
+    let recorder = Arc::new(Recorder::with_samples(args.marks.is_some()));
+    let started_unix = std::time::SystemTime::now();
     let start = Instant::now();
     let end = start + Duration::from_secs_f64(args.duration);
-    let plan = Arc::new(Plan {
+    let mut plan = Plan {
         target: target.clone(),
         scene: args.scene.clone(),
         method,
         options,
-        mode: args.mode,
+        modes: args.mode.clone(),
+        walkthroughs: Vec::new(),
+        group: args.group,
         rate: args.rate,
         max_in_flight: args.max_in_flight,
         walk: args.walk,
@@ -145,7 +164,12 @@ async fn run(args: Args) -> anyhow::Result<()> {
         churn: args.churn,
         bounds,
         end,
-    });
+    };
+    for _ in 0..Plan::groups(&args.mode, args.users, args.group) {
+        let wid = client::create_walkthrough(&plan, &http).await?;
+        plan.walkthroughs.push(wid);
+    }
+    let plan = Arc::new(plan);
     let users: Vec<_> = (0..args.users)
         .map(|u| {
             tokio::spawn(client::user(
@@ -166,13 +190,15 @@ async fn run(args: Args) -> anyhow::Result<()> {
             let mut last = 0;
             loop {
                 tick.tick().await;
-                let (requests, errors, p99) = recorder.progress();
+                let (requests, errors, lost, reconnects, p99) = recorder.progress();
                 eprintln!(
-                    "{:>4.0} s  {:>7} frames/s  p99 so far {:>8.3} ms  errors {}",
+                    "{:>4.0} s  {:>7} frames/s  p99 so far {:>8.3} ms  errors {}  lost {}  reconnects {}",
                     start.elapsed().as_secs_f64(),
                     requests - last,
                     p99,
-                    errors
+                    errors,
+                    lost,
+                    reconnects
                 );
                 last = requests;
             }
@@ -185,13 +211,50 @@ async fn run(args: Args) -> anyhow::Result<()> {
     let config = serde_json::json!({
         "target": target, "scene": args.scene, "users": args.users,
         "duration": args.duration, "method": args.method, "rate": args.rate,
-        "max_in_flight": args.max_in_flight, "mode": args.mode, "walk": args.walk, "step": args.step, "churn": args.churn,
+        "max_in_flight": args.max_in_flight, "mode": args.mode, "group": args.group, "walk": args.walk, "step": args.step, "churn": args.churn,
     });
-    let report = recorder.report(start.elapsed(), config);
+    let elapsed = start.elapsed();
+    let mut report = recorder.report(elapsed, config);
+    if let Some(path) = &args.marks {
+        let marks = read_marks(path, started_unix)?;
+        report.phases = recorder.phases(&marks, elapsed.as_secs_f64());
+    }
     print!("{}", report.table());
     if let Some(path) = &args.json {
         std::fs::write(path, serde_json::to_string_pretty(&report)? + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     Ok(())
+}
+
+/// The marks file: `<unix ms> <label>` a line, as seconds into the run
+/// that started at `started`; a missing file is no marks.
+fn read_marks(
+    path: &std::path::Path,
+    started: std::time::SystemTime,
+) -> anyhow::Result<Vec<(f64, String)>> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", path.display())),
+    };
+    let start_ms = started
+        .duration_since(std::time::UNIX_EPOCH)
+        .context("the clock is before 1970")?
+        .as_secs_f64()
+        * 1e3;
+    let mut marks = Vec::new();
+    for (n, line) in text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+    {
+        let (ms, label) = line.trim().split_once(' ').unwrap_or((line.trim(), ""));
+        let ms: f64 = ms.parse().with_context(|| {
+            format!("{}:{}: '{ms}' is no unix time in ms", path.display(), n + 1)
+        })?;
+        marks.push(((ms - start_ms) / 1e3, label.trim().to_string()));
+    }
+    marks.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Ok(marks)
 }
