@@ -62,26 +62,18 @@ async fn sessions_and_walkthroughs_are_minted_on_the_routing_key_they_are_given(
     let wid = w["walkthrough"].as_str().unwrap().to_string();
     assert!(wid.starts_with(&format!("{KEY}-")));
     let other = "fedcba9876543210";
-    let (st, joined) = post_keyed(
-        &s,
-        &format!("/walkthroughs/{wid}/users"),
-        json!({}),
-        Some(other),
-    )
-    .await;
+    // The header does not move a user off the walkthrough's key; `{}` is
+    // a plain join, as no body is; an unknown field is refused.
+    let users = format!("/walkthroughs/{wid}/users");
+    let (st, bad) = post_keyed(&s, &users, json!({"scen": "city"}), None).await;
     assert_eq!(
-        st,
-        StatusCode::BAD_REQUEST,
-        "a body names a scene: {joined}"
+        (st, code(&bad)),
+        (StatusCode::BAD_REQUEST, "malformed_json"),
+        "{bad}"
     );
-    let (st, _, bytes) = call_raw(
-        &s,
-        "POST",
-        &format!("/walkthroughs/{wid}/users"),
-        NO_BODY,
-        &[("x-pvsd-route", other)],
-    )
-    .await;
+    let (st, _) = post_keyed(&s, &users, json!({}), Some(other)).await;
+    assert_eq!(st, StatusCode::CREATED);
+    let (st, _, bytes) = call_raw(&s, "POST", &users, NO_BODY, &[("x-pvsd-route", other)]).await;
     assert_eq!(st, StatusCode::CREATED);
     let joined: Value = serde_json::from_slice(&bytes).unwrap();
     let session = joined["session"].as_str().unwrap();
@@ -114,7 +106,7 @@ async fn sessions_and_walkthroughs_are_minted_on_the_routing_key_they_are_given(
     }
     let (_, m) = call(&s, "GET", "/metrics", NO_BODY).await;
     let m = m.as_str().unwrap();
-    assert!(m.contains("pvsd_sessions 4\n"), "{m}");
+    assert!(m.contains("pvsd_sessions 5\n"), "{m}");
     assert!(m.contains("pvsd_walkthroughs 1\n"), "{m}");
 }
 

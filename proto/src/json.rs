@@ -152,6 +152,25 @@ pub struct SessionRequest {
     pub options: serde_json::Map<String, serde_json::Value>,
 }
 
+/// The body of `POST /walkthroughs/{wid}/users`, all optional: with a
+/// scene (and the method and options the walkthrough was made with), a
+/// walkthrough the replica does not hold is made again under the same id
+/// (`proto/scale-out.md`); without, an unknown walkthrough is 404.
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JoinRequest {
+    /// The walkthrough's scene id.
+    #[serde(default)]
+    pub scene: Option<String>,
+    /// Its culling method (default `auto`).
+    #[serde(default)]
+    pub method: Option<String>,
+    /// The method's knobs.
+    #[serde(default)]
+    #[schema(value_type = BTreeMap<String, OptionValue>)]
+    pub options: serde_json::Map<String, serde_json::Value>,
+}
+
 /// A box in world coordinates.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq, ToSchema)]
 pub struct Bounds {

@@ -159,9 +159,9 @@ mod operations {
     use super::{Refused, Text, XPvs, XPvsMesh};
     use crate::error::ErrorBody;
     use crate::json::{
-        FrameResponse, MeshesRequest, MoveRequest, ObjectInfo, ReloadReport, SceneInfo,
-        SessionCreated, SessionRequest, UserJoined, ViewRequest, VisibleResponse, WalkResponse,
-        WalkthroughCreated, WalkthroughInfo,
+        FrameResponse, JoinRequest, MeshesRequest, MoveRequest, ObjectInfo, ReloadReport,
+        SceneInfo, SessionCreated, SessionRequest, UserJoined, ViewRequest, VisibleResponse,
+        WalkResponse, WalkthroughCreated, WalkthroughInfo,
     };
 
     /// `{id}`: a scene.
@@ -596,7 +596,7 @@ mod operations {
         tag = "walkthroughs",
         params(WalkthroughId),
         request_body(
-            content = Option<SessionRequest>,
+            content = JoinRequest,
             content_type = "application/json",
             example = json!({"scene": "city", "method": "horizon"})
         ),

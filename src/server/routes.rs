@@ -12,9 +12,9 @@ use axum::extract::{OriginalUri, Path, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use pvsd_proto::json::{
-    AutoInfo, Bounds, FrameResponse, MoveRequest, ObjectInfo, RankedMethod, ReloadReport,
-    SceneInfo, SessionCreated, SessionRequest, UserJoined, ViewRequest, VisibleResponse,
-    WalkthroughCreated, WalkthroughInfo,
+    AutoInfo, Bounds, FrameResponse, JoinRequest, MoveRequest, ObjectInfo, RankedMethod,
+    ReloadReport, SceneInfo, SessionCreated, SessionRequest, UserJoined, ViewRequest,
+    VisibleResponse, WalkthroughCreated, WalkthroughInfo,
 };
 use pvsd_proto::xpvs as binary;
 
@@ -380,23 +380,30 @@ pub async fn create_walkthrough(
 }
 
 /// `POST /walkthroughs/{wid}/users`: a new user, with its own session on
-/// the walkthrough's routing key. With a body (the scene and method, as
-/// `POST /walkthroughs` takes) a walkthrough this replica does not hold
-/// is made again under the same id: users rejoining a walkthrough lost
+/// the walkthrough's routing key. With a body naming the scene (and the
+/// method, as `POST /walkthroughs` takes) a walkthrough this replica does
+/// not hold is made again under the same id: users rejoining a walkthrough lost
 /// with its replica meet again on the one its id routes to now.
 pub async fn join_walkthrough(
     State(state): State<AppState>,
     Path(wid): Path<String>,
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<UserJoined>), ApiError> {
-    let (w, recreated) = if body.iter().all(u8::is_ascii_whitespace) {
-        (state.walkthroughs().get(&wid)?, false)
+    let req: JoinRequest = if body.iter().all(u8::is_ascii_whitespace) {
+        JoinRequest::default()
     } else {
-        let (methods, spec) = scene_and_spec(&state, &body)?;
-        let method = prepare_client(&methods, &spec).await?.0.name();
-        state
-            .walkthroughs()
-            .get_or_recreate(&wid, methods, spec, method)?
+        parse(&body, state.limits().json)?
+    };
+    let (w, recreated) = match &req.scene {
+        None => (state.walkthroughs().get(&wid)?, false),
+        Some(scene) => {
+            let methods = state.scene(scene)?;
+            let spec = method_spec(req.method.as_deref(), &req.options)?;
+            let method = prepare_client(&methods, &spec).await?.0.name();
+            state
+                .walkthroughs()
+                .get_or_recreate(&wid, methods, spec, method)?
+        }
     };
     let (method, cache) = prepare_client(&w.scene, &w.spec).await?;
     let user = w.join();

@@ -871,7 +871,9 @@ async function openScene(id, { method, options, walkthrough } = {}) {
   const body = { scene: id, method: $('method').value, options: parseOptions(optionText) };
   state.walkthrough = walkthrough ?? null;
   const open = async () => {
-    if (state.walkthrough) return postJson(`/walkthroughs/${state.walkthrough}/users`);
+    // With the scene and method, so that a walkthrough lost with its
+    // replica is made again under its id when its users rejoin.
+    if (state.walkthrough) return postJson(`/walkthroughs/${state.walkthrough}/users`, body);
     return postJson('/sessions', body);
   };
   state.lastFrame = null;
