@@ -361,7 +361,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .or(config.addr)
         .unwrap_or_else(|| "127.0.0.1:8080".parse().expect("literal address"));
     let runtime = tokio::runtime::Runtime::new().context("starting the async runtime")?;
-    runtime.block_on(async move {
+    let served = runtime.block_on(async move {
         let listener = tokio::net::TcpListener::bind(addr)
             .await
             .with_context(|| format!("cannot listen on {addr}"))?;
@@ -410,7 +410,12 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
             Some(e) => Err(e),
             None => Ok(()),
         }
-    })
+    });
+    // Scenes still loading (told to stop while starting) are not waited
+    // for: a bake is written to a temporary file and renamed, so one cut
+    // short leaves nothing that loads.
+    runtime.shutdown_background();
+    served
 }
 
 /// Loads and prepares every scene file (the built-in city when there is
@@ -440,9 +445,13 @@ fn load_scenes(
     if rank {
         // Joined: ready means ranked, so every replica's `auto` answers
         // with the method its ranking picked from the first request on.
-        let _ = state
+        let ranked = state
             .rank_in_background(RankParams::default(), bake_dir.as_ref().map(BakeCache::new))
             .join();
+        if ranked.is_err() {
+            tracing::error!("ranking the methods failed: auto answers with frustum culling");
+        }
+        state.readiness().ranking_over();
     }
     tracing::info!(
         ms = started.elapsed().as_millis() as u64,

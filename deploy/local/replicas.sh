@@ -37,7 +37,9 @@ out=$(cd "$out" && pwd)
 : > "$out/marks"
 declare -A pid port
 
+load=""
 cleanup() {
+  [ -z "$load" ] || kill "$load" 2>/dev/null || true
   for name in "${!pid[@]}"; do kill -9 "${pid[$name]}" 2>/dev/null || true; done
   if [ -f "$out/nginx/nginx.pid" ]; then
     kill "$(cat "$out/nginx/nginx.pid")" 2>/dev/null || true
@@ -105,9 +107,14 @@ write_nginx_conf() {
   "$NGINX_BIN" -t -q -e "$out/nginx/logs/error.log" -p "$out/nginx" -c "$out/nginx/nginx.conf"
 }
 
-# What a replica's /metrics says of one gauge.
+# What a replica's /metrics says of one gauge (0 when it has none yet).
 gauge() {
-  curl -sf "http://127.0.0.1:${port[$1]}/metrics" | awk -v m="$2" '$1 == m { print $2 }'
+  local v
+  v=$(curl -sf "http://127.0.0.1:${port[$1]}/metrics" | awk -v m="$2" '$1 == m { print $2 }') || {
+    echo "replica $1 did not answer /metrics" >&2
+    exit 1
+  }
+  echo "${v:-0}"
 }
 
 "$PVSD" gen city --buildings "$BUILDINGS" --seed 7 -o "$out/city.glb" 2> /dev/null

@@ -358,15 +358,15 @@ impl SessionLink {
             .delete(format!("{}/sessions/{old}", plan.target))
             .send()
             .await;
-        match self.origin.create(plan, http, rec).await {
-            Ok(sid) => {
-                let url = Self::frames_url(plan, &sid);
-                let mut c = self.current.lock().unwrap();
-                *c = (c.0 + 1, sid, url);
-                *held.lock().unwrap() = Held::default();
-                rec.churned();
-            }
-            Err(kind) => rec.error(kind),
+        // A failed make (the replica went away as the user left) is not
+        // counted: the next frame finds the old session gone and the user
+        // makes a new one (soft state).
+        if let Ok(sid) = self.origin.create(plan, http, rec).await {
+            let url = Self::frames_url(plan, &sid);
+            let mut c = self.current.lock().unwrap();
+            *c = (c.0 + 1, sid, url);
+            *held.lock().unwrap() = Held::default();
+            rec.churned();
         }
     }
 
@@ -412,6 +412,18 @@ async fn due(plan: &Plan, start: Instant, k: u64) -> Option<Instant> {
         None => Instant::now(),
     };
     (due < plan.end).then_some(due)
+}
+
+/// Whether a WebSocket text message is the server saying the session
+/// ended (`{"error": {"code": "unknown_session" | "session_expired" |
+/// "session_evicted", …}}`).
+fn ended_session(text: &str) -> bool {
+    serde_json::from_str::<Value>(text).is_ok_and(|v| {
+        matches!(
+            v["error"]["code"].as_str(),
+            Some("unknown_session" | "session_expired" | "session_evicted")
+        )
+    })
 }
 
 /// Whether a failed frame means its session (or the replica holding it)
@@ -512,17 +524,23 @@ async fn http_user(
             let stale = || session.as_ref().is_some_and(|s| s.url().0 != generation);
             let checked = answer.and_then(|b| {
                 if stale() {
-                    return Ok((b.len(), 0));
+                    return Ok((b.len(), 0, false));
                 }
-                check(&b, session.is_some(), &held).map(|users| (b.len(), users))
+                check(&b, session.is_some(), &held).map(|users| (b.len(), users, true))
             });
             match checked {
-                Ok((n, users)) => rec.ok(due.elapsed(), sent, n, users),
+                Ok((n, users, current)) => rec.ok(due.elapsed(), sent, n, users, current),
                 Err(kind) => match &session {
                     Some(link) if session_lost(kind) => {
                         rec.lost(kind);
-                        link.renew(generation, &shared_plan, &http, &held, &rec)
+                        let renewed = link
+                            .renew(generation, &shared_plan, &http, &held, &rec)
                             .await;
+                        if !renewed {
+                            // The server is away: wait before the next
+                            // frame rather than spin on a dead session.
+                            tokio::time::sleep(Duration::from_millis(100)).await;
+                        }
                     }
                     _ => rec.error(kind),
                 },
@@ -587,15 +605,17 @@ async fn ws_user(
             plan.target.replacen("http", "ws", 1),
             link.sid()
         );
-        match tokio_tungstenite::connect_async(&url).await {
-            Ok((socket, response)) => {
-                rec.replica(response.headers());
-                let ended = ws_frames(plan, socket, &mut walk, start, &mut k, rec).await;
-                if ended {
-                    return;
-                }
+        // A connection the server never answers is given up on (and a
+        // new session made) rather than waited for past the run's end.
+        let connecting = tokio_tungstenite::connect_async(&url);
+        if let Ok(Ok((socket, response))) =
+            tokio::time::timeout(Duration::from_secs(5), connecting).await
+        {
+            rec.replica(response.headers());
+            let ended = ws_frames(plan, socket, &mut walk, start, &mut k, rec).await;
+            if ended {
+                return;
             }
-            Err(_) => rec.lost("connect"),
         }
         // The socket died before the run's end: a new session, a new
         // socket (retried while the server is away, until the end).
@@ -632,28 +652,41 @@ async fn ws_frames(
             // A new socket is a new session: its first frame is whole.
             let held = Mutex::new(Held::default());
             while let Some((due, sent)) = dues_rx.recv().await {
-                let got = tokio::time::timeout(Duration::from_secs(30), rx.next()).await;
+                // Pings are no answers (tungstenite answers them itself).
+                let got = loop {
+                    match tokio::time::timeout(Duration::from_secs(30), rx.next()).await {
+                        Ok(Some(Ok(Message::Ping(_) | Message::Pong(_)))) => continue,
+                        other => break other,
+                    }
+                };
                 let bytes = match got {
                     Ok(Some(Ok(Message::Binary(b)))) => Some(b),
-                    Ok(Some(Ok(_))) => None,
-                    Ok(_) => {
-                        // This frame and every one queued behind it.
-                        rec.lost("ws_closed");
-                        while dues_rx.try_recv().is_ok() {
-                            rec.lost("ws_closed");
-                        }
-                        return false;
-                    }
+                    // The server ended the session (it says why, then
+                    // closes) or is shutting down (`1001`): soft state.
+                    Ok(Some(Ok(Message::Text(t)))) if ended_session(&t) => None,
+                    // Another error message, or a raw frame: no answer
+                    // (`decode` below names it).
+                    Ok(Some(Ok(Message::Text(_) | Message::Frame(_)))) => Some(Default::default()),
+                    // Closed (`1001` at shutdown, `1008` with a reason) or
+                    // dropped (the replica died).
+                    Ok(_) => None,
                     Err(_) => {
                         rec.error("timeout");
                         return false;
                     }
                 };
-                match bytes
-                    .ok_or("ws_error_message")
-                    .and_then(|b| check(&b, true, &held).map(|users| (b.len(), users)))
-                {
-                    Ok((n, users)) => rec.ok(due.elapsed(), sent, n, users),
+                let Some(bytes) = bytes else {
+                    // This frame and every one queued behind it.
+                    rec.lost("ws_closed");
+                    while dues_rx.try_recv().is_ok() {
+                        rec.lost("ws_closed");
+                    }
+                    return false;
+                };
+                match check(&bytes, true, &held) {
+                    Ok(users) => rec.ok(due.elapsed(), sent, bytes.len(), users, true),
+                    // Not a frame (an error message, an empty one):
+                    // `decode` names it.
                     Err(kind) => rec.error(kind),
                 }
                 let _ = answered_tx.try_send(());

@@ -303,12 +303,24 @@ impl UserRecorder {
         UserRecorder { all, user, mode }
     }
 
-    /// One answered frame, with the number of other users it showed.
-    pub fn ok(&self, latency: Duration, sent: usize, received: usize, users_visible: usize) {
+    /// One answered frame, with the number of other users it showed;
+    /// `current`: answered for the user's session now (not an answer of a
+    /// session it has since replaced, which mends no loss).
+    pub fn ok(
+        &self,
+        latency: Duration,
+        sent: usize,
+        received: usize,
+        users_visible: usize,
+        current: bool,
+    ) {
         self.all.ok(latency, sent, received);
         self.all.user(self.user, self.mode, |u| {
             u.answered += 1;
             u.saw_users += u64::from(users_visible > 0);
+            if !current {
+                return;
+            }
             if let Some(since) = u.lost_since.take() {
                 let ms = since.elapsed().as_secs_f64() * 1e3;
                 u.recovery_ms = Some(u.recovery_ms.map_or(ms, |m| m.max(ms)));

@@ -109,8 +109,11 @@ pub async fn serve(
     let readiness = state.readiness().clone();
     let drained = async move {
         shutdown.await;
+        // One that never was ready (told to stop while loading, or its
+        // scenes failed) had no traffic to drain.
+        let was_ready = readiness.check().is_ok();
         readiness.drain();
-        if !limits.drain.is_zero() {
+        if was_ready && !limits.drain.is_zero() {
             tracing::info!(
                 drain_s = limits.drain.as_secs_f64(),
                 "draining: not ready; serving on while load balancers take this replica out"

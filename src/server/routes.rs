@@ -394,9 +394,10 @@ pub async fn join_walkthrough(
     } else {
         parse(&body, state.limits().json)?
     };
-    let (w, recreated) = match &req.scene {
-        None => (state.walkthroughs().get(&wid)?, false),
-        Some(scene) => {
+    let (w, recreated) = match (state.walkthroughs().get(&wid), &req.scene) {
+        (Ok(w), _) => (w, false),
+        (Err(unknown), None) => return Err(unknown),
+        (Err(_), Some(scene)) => {
             let methods = state.scene(scene)?;
             let spec = method_spec(req.method.as_deref(), &req.options)?;
             let method = prepare_client(&methods, &spec).await?.0.name();

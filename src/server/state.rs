@@ -208,6 +208,12 @@ impl Readiness {
             .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1));
     }
 
+    /// Ranking is over (done, or given up: `auto` answers with frustum
+    /// culling where a scene is not ranked), whatever is left of it.
+    pub fn ranking_over(&self) {
+        self.0.ranking.store(0, Ordering::SeqCst);
+    }
+
     /// The server was told to stop: not ready from now on.
     pub fn drain(&self) {
         self.0.draining.store(true, Ordering::SeqCst);
