@@ -212,46 +212,29 @@ async fn ready_only_when_loaded_and_not_draining_live_throughout() {
         get("/healthz/ready").await,
         (StatusCode::OK, json!("ready"))
     );
-    // Two scenes to load, then rank: not ready until all of it is done.
-    s.readiness().loading(2, true);
-    for _ in 0..2 {
-        let (st, v) = get("/healthz/ready").await;
+    // Not ready, saying why.
+    let not_ready = |(st, v): (StatusCode, Value), why: &str| {
         assert_eq!(
             (st, code(&v)),
             (StatusCode::SERVICE_UNAVAILABLE, "not_ready")
         );
-        assert!(
-            v["error"]["message"]
-                .as_str()
-                .unwrap()
-                .contains("still loading"),
-            "{v}"
-        );
+        let message = v["error"]["message"].as_str().unwrap();
+        assert!(message.contains(why), "{message}");
+    };
+    // Two scenes to load, then rank: not ready until all of it is done.
+    s.readiness().loading(2, true);
+    for _ in 0..2 {
+        not_ready(get("/healthz/ready").await, "still loading");
         assert_eq!(get("/healthz/live").await.0, StatusCode::OK);
         s.readiness().scene_loaded();
     }
     for _ in 0..2 {
-        let (_, v) = get("/healthz/ready").await;
-        assert!(
-            v["error"]["message"].as_str().unwrap().contains("ranking"),
-            "{v}"
-        );
+        not_ready(get("/healthz/ready").await, "ranking");
         s.readiness().scene_ranked();
     }
     assert_eq!(get("/healthz/ready").await.0, StatusCode::OK);
     s.readiness().drain();
-    let (st, v) = get("/healthz/ready").await;
-    assert_eq!(
-        (st, code(&v)),
-        (StatusCode::SERVICE_UNAVAILABLE, "not_ready")
-    );
-    assert!(
-        v["error"]["message"]
-            .as_str()
-            .unwrap()
-            .starts_with("draining"),
-        "{v}"
-    );
+    not_ready(get("/healthz/ready").await, "draining");
     // Draining still serves.
     assert_eq!(get("/healthz/live").await.0, StatusCode::OK);
     assert_eq!(get("/scenes").await.0, StatusCode::OK);
