@@ -15,9 +15,10 @@
 //! - a TLS handshake must finish within the header timeout too.
 //!
 //! Shutdown: the server drains first (not ready, still serving, for
-//! [`ConnectionLimits::drain`]); then the listener stops accepting; connections finish the request
-//! in flight and close; WebSockets get a close frame saying why
-//! (`ws`); whatever is still open after the grace period is dropped.
+//! [`ConnectionLimits::drain`]); then the listener stops accepting;
+//! connections finish the request in flight and close; WebSockets get a
+//! close frame saying why (`ws`); whatever is still open after the grace
+//! period is dropped.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
