@@ -71,25 +71,25 @@ impl Plan {
         self.modes[u as usize % self.modes.len()]
     }
 
-    /// Walkthrough mode: user `u`'s walkthrough and place in it.
-    fn walkthrough_of(&self, u: u32) -> Option<(&str, u32)> {
-        if self.mode(u) != Mode::Walkthrough {
-            return None;
-        }
-        let nth = (0..u)
-            .filter(|&v| self.mode(v) == Mode::Walkthrough)
-            .count() as u32;
-        let wid = self.walkthroughs.get((nth / self.group) as usize)?;
-        Some((wid, nth % self.group))
+    /// Walkthrough mode: user `u`'s walkthrough (its index) and place in
+    /// it.
+    fn walkthrough_of(&self, u: u32) -> Option<(usize, u32)> {
+        let nth = walker(&self.modes, u)?;
+        Some(((nth / self.group) as usize, nth % self.group))
     }
 
     /// Walkthroughs needed for `users` users.
     pub fn groups(modes: &[Mode], users: u32, group: u32) -> u32 {
-        let walkers = (0..users)
-            .filter(|&u| modes[u as usize % modes.len()] == Mode::Walkthrough)
-            .count() as u32;
+        let walkers = (0..users).filter_map(|u| walker(modes, u)).count() as u32;
         walkers.div_ceil(group)
     }
+}
+
+/// How many walkthrough users come before user `u`, if `u` is one.
+fn walker(modes: &[Mode], u: u32) -> Option<u32> {
+    let mode = |v: u32| modes[v as usize % modes.len()];
+    (mode(u) == Mode::Walkthrough)
+        .then(|| (0..u).filter(|&v| mode(v) == Mode::Walkthrough).count() as u32)
 }
 
 /// The body that makes a session or a walkthrough (and remakes a lost
@@ -213,10 +213,9 @@ pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recor
     const LAG: u32 = 4;
     let walkthrough = plan.walkthrough_of(u);
     let walk = match walkthrough {
-        Some((wid, place)) => {
-            let seed =
-                1 + u64::from(plan.walkthroughs.iter().position(|w| w == wid).unwrap_or(0) as u32);
-            let mut walk = Walk::new(plan.walk, &plan.bounds, 10_000 + seed, plan.step);
+        Some((group, place)) => {
+            let seed = 10_001 + group as u64;
+            let mut walk = Walk::new(plan.walk, &plan.bounds, seed, plan.step);
             for _ in 0..place * LAG {
                 walk.next_pose();
             }
@@ -224,8 +223,8 @@ pub async fn user(u: u32, plan: Arc<Plan>, http: reqwest::Client, rec: Arc<Recor
         }
         None => Walk::new(plan.walk, &plan.bounds, u64::from(u) + 1, plan.step),
     };
-    let origin = match walkthrough {
-        Some((wid, _)) => Origin::Walkthrough(wid.to_string()),
+    let origin = match walkthrough.and_then(|(group, _)| plan.walkthroughs.get(group)) {
+        Some(wid) => Origin::Walkthrough(wid.clone()),
         None => Origin::Session,
     };
     let session = match mode {
