@@ -512,6 +512,7 @@ async fn a_method_that_cannot_be_built_again_is_a_clear_error() {
     static BUILT: AtomicBool = AtomicBool::new(false);
     let horizon = pvsd::cull::horizon::ENTRY;
     let registry = Registry::standard().with(MethodEntry {
+        regions: None,
         build: |p| {
             if BUILT.swap(true, Ordering::SeqCst) {
                 Err("the prisms are gone".into())

@@ -246,6 +246,7 @@ fn the_table_catches_a_method_that_drops_the_nearest_object() {
         purpose: "a deliberately wrong method",
         checked_with: &[],
         options: &[],
+        regions: None,
         build: |p| {
             Ok(Arc::new(DropsNearest {
                 inner: FrustumCulling::new(p.scene().clone(), p.kd_tree()),

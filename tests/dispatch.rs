@@ -158,6 +158,7 @@ fn registry() -> Registry {
             purpose: "frustum culling on a device's thread (a test's device)",
             checked_with: &[],
             options: &[],
+            regions: None,
             build: |p| on_device(p, "on_device", probe()),
         })
         .with(MethodEntry {
@@ -165,6 +166,7 @@ fn registry() -> Registry {
             purpose: "frustum culling on a device that may hang (a test's device)",
             checked_with: &[],
             options: &[],
+            regions: None,
             build: |p| on_device(p, "on_hung_device", hung_probe()),
         })
         .with(MethodEntry {
@@ -172,6 +174,7 @@ fn registry() -> Registry {
             purpose: "a method with a bug",
             checked_with: &[],
             options: &[],
+            regions: None,
             build: |_| Ok(Arc::new(Panicky)),
         })
 }

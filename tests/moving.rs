@@ -396,6 +396,7 @@ async fn a_fallback_answers_the_movers_of_a_method_that_culls_them_itself() {
         purpose: "a test's method",
         checked_with: &[],
         options: &[],
+        regions: None,
         build: |_| Ok(Arc::new(FailsWithMovers)),
     });
     let state = AppState::with_methods(

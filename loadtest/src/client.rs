@@ -771,8 +771,8 @@ mod tests {
     fn view_bodies_are_json_the_server_reads() {
         let body = view(([1.5, -2.0, 1e7], [0.0, 0.0, 1.0]), r#","base":4"#);
         let req: pvsd_proto::json::ViewRequest = serde_json::from_str(&body).unwrap();
-        assert_eq!(req.eye.map(|n| n.0), [1.5, -2.0, 1e7]);
-        assert_eq!(req.forward.map(|n| n.0), [0.0, 0.0, 1.0]);
+        assert_eq!(req.eye.unwrap().map(|n| n.0), [1.5, -2.0, 1e7]);
+        assert_eq!(req.forward.unwrap().map(|n| n.0), [0.0, 0.0, 1.0]);
         assert_eq!(req.viewport, Some([1024, 768]));
         assert_eq!(req.base, Some(4));
     }

@@ -103,6 +103,8 @@ error_codes! {
     NotReady = "not_ready",
     /// 503: the scene is configured but still loading; try again after `Retry-After` seconds.
     SceneLoading = "scene_loading",
+    /// 400: the method cannot answer for a region of views (`radius` or `angle` above 0); the message says why and the method to use instead.
+    UnsupportedRegion = "unsupported_region",
 }
 
 impl std::fmt::Display for ErrorCode {

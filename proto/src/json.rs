@@ -53,6 +53,13 @@ impl<'de> Deserialize<'de> for Number {
     }
 }
 
+/// Written as a plain number (a client's requests carry finite ones).
+impl Serialize for Number {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(self.0)
+    }
+}
+
 /// In the document a `Number` is a number: the non-finite spellings are
 /// read only to be refused by name.
 impl PartialSchema for Number {
@@ -96,12 +103,13 @@ impl ToSchema for OptionValue {}
 #[serde(deny_unknown_fields)]
 #[schema(as = View)]
 pub struct ViewRequest {
-    /// Eye position, world coordinates.
+    /// Eye position, world coordinates. Required unless `views` is given.
     #[schema(min_items = 3, max_items = 3)]
-    pub eye: [Number; 3],
-    /// Viewing direction (need not be unit length; not zero).
+    pub eye: Option<[Number; 3]>,
+    /// Viewing direction (need not be unit length; not zero). Required
+    /// unless `views` is given.
     #[schema(min_items = 3, max_items = 3)]
-    pub forward: [Number; 3],
+    pub forward: Option<[Number; 3]>,
     /// Up direction, not parallel to `forward` (default +Y).
     #[schema(min_items = 3, max_items = 3, default = json!([0, 1, 0]))]
     pub up: Option<[Number; 3]>,
@@ -130,6 +138,22 @@ pub struct ViewRequest {
     #[serde(default)]
     #[schema(value_type = BTreeMap<String, OptionValue>)]
     pub options: serde_json::Map<String, serde_json::Value>,
+    /// Make the answer valid for every eye within this distance of `eye`
+    /// (world units, ≥ 0; default 0, or the session's): a client may keep
+    /// it while it stays inside the ball.
+    #[schema(value_type = Option<f64>, default = 0, minimum = 0)]
+    pub radius: Option<Number>,
+    /// Make the answer valid for every direction within this many degrees
+    /// of `forward` (any rotation by at most this, roll included; in
+    /// [0, 180], default 0 or the session's).
+    #[schema(value_type = Option<f64>, default = 0, minimum = 0, maximum = 180)]
+    pub angle: Option<Number>,
+    /// Several views answered together (1–8; two eyes of a headset, split
+    /// screens, a shadow frustum), instead of this object's own `eye`,
+    /// `forward` and camera fields: the answer is the union. Each is a view
+    /// without `method`, `options`, `base` or `views`.
+    #[schema(no_recursion)]
+    pub views: Option<Vec<ViewRequest>>,
     /// Session frames only (refused on `/scenes/{id}/visible`): the frame
     /// the client holds; the answer is the delta against it if the session
     /// still keeps it (the last 4), else the whole set with `base: null`.
@@ -150,6 +174,14 @@ pub struct SessionRequest {
     #[serde(default)]
     #[schema(value_type = BTreeMap<String, OptionValue>)]
     pub options: serde_json::Map<String, serde_json::Value>,
+    /// The `radius` of frames that give none (default 0).
+    #[serde(default)]
+    #[schema(value_type = Option<f64>, default = 0, minimum = 0)]
+    pub radius: Option<Number>,
+    /// The `angle` of frames that give none (default 0).
+    #[serde(default)]
+    #[schema(value_type = Option<f64>, default = 0, minimum = 0, maximum = 180)]
+    pub angle: Option<Number>,
 }
 
 /// The body of `POST /walkthroughs/{wid}/users`, all optional: with a
@@ -351,6 +383,18 @@ pub struct Stats {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(nullable = false)]
     pub fallback_reason: Option<String>,
+    /// Only for a region: the largest `radius` of the request's views.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub radius: Option<f64>,
+    /// Only for a region: the largest `angle` of the request's views.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub angle: Option<f64>,
+    /// Only for several views: how many were answered together.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false)]
+    pub views: Option<u32>,
 }
 
 /// The answer of `POST /scenes/{id}/visible`.
@@ -506,6 +550,9 @@ mod tests {
             visible: 2,
             fallback: fallback.map(|f| f.0.into()),
             fallback_reason: fallback.map(|f| f.1.into()),
+            radius: None,
+            angle: None,
+            views: None,
         }
     }
 

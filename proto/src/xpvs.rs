@@ -248,6 +248,10 @@ impl Reader<'_> {
             visible,
             fallback,
             fallback_reason,
+            // The binary frame carries no request echo (JSON does).
+            radius: None,
+            angle: None,
+            views: None,
         })
     }
 }
@@ -368,6 +372,9 @@ mod tests {
                 visible: 1,
                 fallback: Some("frustum".into()),
                 fallback_reason: Some("the device was lost".into()),
+                radius: None,
+                angle: None,
+                views: None,
             }),
         };
         assert_eq!(decode(&encode_frame(&f)), Ok(Message::Frame(f.clone())));
@@ -392,6 +399,9 @@ mod tests {
                 in_frustum: None,
                 fallback: None,
                 fallback_reason: None,
+                radius: None,
+                angle: None,
+                views: None,
                 ..f.stats.clone().unwrap()
             }),
             ..f

@@ -79,6 +79,7 @@ fn ran(job: CullJob, result: Result<CullStats, CullError>) -> Ran {
 /// What a device job's fallback needs when the device keeps the job.
 struct Spare {
     view: View,
+    also: Vec<View>,
     boxes: Vec<Aabb>,
     options: MethodOptions,
 }
@@ -87,6 +88,7 @@ impl Spare {
     fn of(job: &CullJob) -> Spare {
         Spare {
             view: job.view,
+            also: job.also.clone(),
             boxes: job.occludees.boxes().to_vec(),
             options: job.cache.options().clone(),
         }
@@ -105,6 +107,7 @@ impl Spare {
             }
         };
         let mut job = CullJob::new(self.view, cache);
+        job.also = self.also;
         job.occludees.set_boxes(self.boxes);
         Err(Unanswered {
             job: Some(Box::new(job)),
@@ -280,6 +283,7 @@ impl SceneMethods {
         };
         let mut instead = CullJob {
             view: job.view,
+            also: std::mem::take(&mut job.also),
             cache,
             out: std::mem::take(&mut job.out),
             occludees: std::mem::take(&mut job.occludees),
@@ -298,6 +302,7 @@ impl SceneMethods {
             0
         };
         job.out = instead.out;
+        job.also = instead.also;
         job.occludees = instead.occludees;
         let mut stats = match result {
             Ok(stats) => stats,

@@ -288,8 +288,12 @@ impl std::fmt::Debug for ClientCache {
 /// one between frames, so its buffers are reused.
 #[derive(Debug)]
 pub struct CullJob {
-    /// The view to answer.
+    /// The view to answer (the first, when there are several).
     pub view: View,
+    /// More views answered together with `view` (a multi-view request:
+    /// two eyes, split screens): the answer is the union, each method run
+    /// once per view on the same state. Empty for one view.
+    pub also: Vec<View>,
     /// The client's temporal state.
     pub cache: ClientCache,
     /// The answer: cleared before, sorted after the cull.
@@ -303,6 +307,7 @@ impl CullJob {
     pub fn new(view: View, cache: ClientCache) -> CullJob {
         CullJob {
             view,
+            also: Vec::new(),
             cache,
             out: VisibleSet::new(),
             occludees: Occludees::default(),
@@ -365,12 +370,18 @@ impl<M: CullMethod> Culler for M {
 
     fn cull(&self, job: &mut CullJob) -> Result<CullStats, CullError> {
         let start = Instant::now();
+        let also = std::mem::take(&mut job.also);
         let item = self.begin(job);
-        let counters = CullMethod::cull(self, item.view, item.state, item.out, item.occludees)?;
-        Ok(self.finish(job, counters, start))
+        let result = cull_views(self, item, &also);
+        job.also = also;
+        Ok(self.finish(job, result?, start))
     }
 
     fn cull_batch(&self, jobs: &mut [CullJob]) -> Vec<Result<CullStats, CullError>> {
+        if jobs.iter().any(|job| !job.also.is_empty()) {
+            // A device batch answers one view per job.
+            return jobs.iter_mut().map(|job| Culler::cull(self, job)).collect();
+        }
         // Each answer's time is the batch's: what its client waited for.
         let start = Instant::now();
         let mut items: Vec<BatchItem<'_, M::State>> =
@@ -434,6 +445,32 @@ trait CullerSteps: CullMethod + Sized {
             fallback: None,
         }
     }
+}
+
+/// Culls `item`'s view and then each of `also` into the same answer with
+/// the same state: the union. An occludee is visible when some view sees
+/// it. With several views nothing counts the objects in their frusta.
+fn cull_views<M: CullMethod>(
+    method: &M,
+    item: BatchItem<'_, M::State>,
+    also: &[View],
+) -> Result<CullCounters, CullError> {
+    let mut counters = CullMethod::cull(method, item.view, item.state, item.out, item.occludees)?;
+    if also.is_empty() {
+        return Ok(counters);
+    }
+    let mut seen = item.occludees.visible().to_vec();
+    for view in also {
+        item.occludees.reset(view);
+        let more = CullMethod::cull(method, view, item.state, item.out, item.occludees)?;
+        counters.nodes_tested += more.nodes_tested;
+        for (s, &v) in seen.iter_mut().zip(item.occludees.visible()) {
+            *s |= v;
+        }
+    }
+    item.occludees.visible = seen;
+    counters.in_frustum = InFrustum::Unknown;
+    Ok(counters)
 }
 
 /// A cache made by one method handed to another: a caller bug.

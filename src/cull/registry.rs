@@ -198,6 +198,10 @@ pub struct MethodEntry {
     pub checked_with: &'static [&'static str],
     /// The options it takes (`GET /scenes` lists them for clients' forms).
     pub options: &'static [&'static str],
+    /// Whether it answers for a region of views (a request's `radius` and
+    /// `angle`): `None` when it does, else why not (a request with a region
+    /// is refused with this reason).
+    pub regions: Option<&'static str>,
     /// How to build it for one scene.
     pub build: Build,
 }
@@ -446,6 +450,72 @@ impl SceneMethods {
             .unwrap_or(AUTO_CHOICE)
     }
 
+    /// [`SceneMethods::auto_choice`] among the methods that answer for a
+    /// region of views ([`MethodEntry::regions`]).
+    fn auto_choice_for_regions(&self, cost: FrameCost) -> &'static str {
+        let ranking = self.ranking();
+        ranking
+            .iter()
+            .flat_map(|r| r.ranked(cost))
+            .find_map(|(m, _)| {
+                self.slot(&m.method)
+                    .filter(|s| s.entry.regions.is_none())
+                    .map(|s| s.entry.name)
+            })
+            .unwrap_or(AUTO_CHOICE)
+    }
+
+    /// The scene's methods that answer for a region of views.
+    pub fn answering_regions(&self) -> Vec<&'static str> {
+        self.slots
+            .iter()
+            .filter(|s| s.entry.regions.is_none())
+            .map(|s| s.entry.name)
+            .collect()
+    }
+
+    /// [`SceneMethods::resolve`] for a request that asks for a region of
+    /// views when `regions`: `auto` picks the best method that answers for
+    /// one, and a named method that cannot is refused with its reason.
+    pub fn resolve_for(
+        &self,
+        spec: &MethodSpec,
+        regions: bool,
+    ) -> Result<(Arc<dyn Culler>, MethodOptions), MethodError> {
+        if !regions {
+            return self.resolve(spec);
+        }
+        if spec.name == "auto" {
+            let cost = FrameCost::read(&spec.options, self.frame_cost)?;
+            let name = self.auto_choice_for_regions(cost);
+            return Ok((self.get(name)?, MethodOptions::default()));
+        }
+        self.check_regions(&spec.name)?;
+        self.resolve(spec)
+    }
+
+    /// Whether the method named answers for a region of views.
+    pub fn answers_regions(&self, name: &str) -> bool {
+        self.check_regions(name).is_ok()
+    }
+
+    /// Refuses a method that cannot answer for a region of views, with why.
+    pub fn check_regions(&self, name: &str) -> Result<(), MethodError> {
+        match self.slot(name).and_then(|s| s.entry.regions) {
+            Some(reason) => Err(MethodError::NoRegions {
+                name: name.to_string(),
+                reason: reason.to_string(),
+                answering: self
+                    .answering_regions()
+                    .into_iter()
+                    .chain(["auto"])
+                    .map(String::from)
+                    .collect(),
+            }),
+            None => Ok(()),
+        }
+    }
+
     /// The method a spec names with the options it gets: `auto` reads its
     /// prices (`cost_per_triangle_ns`, `cost_per_byte_ns`) and hands its
     /// choice the choice's defaults. A released method is built again
@@ -465,8 +535,15 @@ impl SceneMethods {
     /// takes no build; false for a name it does not know (resolving that
     /// fails at once).
     pub fn is_resident(&self, spec: &MethodSpec) -> bool {
+        self.is_resident_for(spec, false)
+    }
+
+    /// [`SceneMethods::is_resident`] for a client that asks for regions
+    /// when `regions` (`auto` may pick another method then).
+    pub fn is_resident_for(&self, spec: &MethodSpec, regions: bool) -> bool {
         let name = if spec.name == "auto" {
             match FrameCost::read(&spec.options, self.frame_cost) {
+                Ok(cost) if regions => self.auto_choice_for_regions(cost),
                 Ok(cost) => self.auto_choice(cost),
                 Err(_) => return true,
             }
@@ -613,7 +690,17 @@ impl SceneMethods {
         &self,
         spec: &MethodSpec,
     ) -> Result<(Arc<dyn Culler>, ClientCache), MethodError> {
-        let (method, options) = self.resolve(spec)?;
+        self.prepare_client_for(spec, false)
+    }
+
+    /// [`SceneMethods::prepare_client`] for a client that asks for regions
+    /// of views when `regions` ([`SceneMethods::resolve_for`]).
+    pub fn prepare_client_for(
+        &self,
+        spec: &MethodSpec,
+        regions: bool,
+    ) -> Result<(Arc<dyn Culler>, ClientCache), MethodError> {
+        let (method, options) = self.resolve_for(spec, regions)?;
         let cache = method.new_cache(&options)?;
         Ok((method, cache))
     }

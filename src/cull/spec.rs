@@ -80,6 +80,17 @@ pub enum MethodError {
         /// What is wrong.
         problem: String,
     },
+    /// A request asks for a region of views (`radius`, `angle`) from a
+    /// method that cannot answer for one.
+    #[error("method '{name}' cannot answer for a region of views (radius or angle above 0): {reason}; use one of: {}", answering.join(", "))]
+    NoRegions {
+        /// The method.
+        name: String,
+        /// Why not.
+        reason: String,
+        /// The scene's methods that can.
+        answering: Vec<String>,
+    },
     /// A method the scene supports, released while unused, could not be
     /// built again ([`super::SceneMethods::release_unasked`]).
     #[error("method '{name}' of scene '{scene}' could not be prepared again: {reason}")]

@@ -57,7 +57,10 @@ struct Projection {
 const SAT_TOLERANCE: f64 = 1e-12;
 
 impl Frustum {
-    fn from_planes_and_corners(planes: [Plane; 6], corners: [DVec3; 8]) -> Option<Frustum> {
+    pub(super) fn from_planes_and_corners(
+        planes: [Plane; 6],
+        corners: [DVec3; 8],
+    ) -> Option<Frustum> {
         if corners.iter().any(|c| !c.is_finite()) {
             return None;
         }

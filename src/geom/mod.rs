@@ -9,6 +9,7 @@ mod camera;
 mod frustum;
 mod plane;
 mod polygon;
+mod region;
 mod round;
 
 pub use aabb::Aabb;
@@ -18,4 +19,5 @@ pub use camera::{
 pub use frustum::{ALL_PLANES, Frustum, PlaneMask};
 pub use plane::{Plane, Side};
 pub use polygon::{ConvexPolygon, Split};
+pub use region::{MAX_RADIUS, MAX_WIDENED, Region};
 pub use round::{ceil_i64, floor_i64};

@@ -63,6 +63,33 @@ impl ConvexPolygon {
         Plane::from_point_normal(self.centroid(), self.normal()?)
     }
 
+    /// The polygon with every edge moved inwards by `by` within its plane
+    /// (its erosion by a disc of radius `by`), or `None` when nothing is
+    /// left. Each edge's line moves by `by` exactly, then the intersection
+    /// points are rounded: callers that need the result strictly inside ask
+    /// for a little more.
+    pub fn inset(&self, by: f64) -> Option<ConvexPolygon> {
+        let normal = self.normal()?;
+        let centre = self.centroid();
+        let n = self.vertices.len();
+        let mut part = self.clone();
+        for i in 0..n {
+            let (a, b) = (self.vertices[i], self.vertices[(i + 1) % n]);
+            let Some(mut inward) = normal.cross(b - a).try_normalize() else {
+                continue;
+            };
+            if inward.dot(centre - a) < 0.0 {
+                inward = -inward;
+            }
+            let edge = Plane::from_point_normal(a + inward * by, inward)?;
+            part = part.clipped(&edge, 0.0)?;
+            if part.vertices.len() < 3 || part.area() == 0.0 {
+                return None;
+            }
+        }
+        Some(part)
+    }
+
     /// The part in front of `plane` (on it within `eps` counts as in front),
     /// or `None` when nothing is.
     pub fn clipped(&self, plane: &Plane, eps: f64) -> Option<ConvexPolygon> {
@@ -128,6 +155,22 @@ mod tests {
             DVec3::new(2.0, 2.0, 0.0),
             DVec3::new(0.0, 2.0, 0.0),
         ])
+    }
+
+    #[test]
+    fn inset_moves_every_edge_in_and_vanishes_when_thin() {
+        let s = square().inset(0.25).unwrap();
+        assert!((s.area() - 1.5 * 1.5).abs() < 1e-12);
+        for v in &s.vertices {
+            assert!(v.x >= 0.25 - 1e-12 && v.x <= 1.75 + 1e-12, "{v:?}");
+            assert!(v.y >= 0.25 - 1e-12 && v.y <= 1.75 + 1e-12, "{v:?}");
+        }
+        // Either winding.
+        let mut flipped = square();
+        flipped.vertices.reverse();
+        assert!((flipped.inset(0.25).unwrap().area() - 2.25).abs() < 1e-12);
+        assert_eq!(square().inset(1.0), None);
+        assert_eq!(square().inset(3.0), None);
     }
 
     #[test]

@@ -213,6 +213,9 @@ impl ApiError {
                 MethodError::NotRebuilt { .. } => {
                     (StatusCode::INTERNAL_SERVER_ERROR, ErrorCode::Internal)
                 }
+                MethodError::NoRegions { .. } => {
+                    (StatusCode::BAD_REQUEST, ErrorCode::UnsupportedRegion)
+                }
             },
             ApiError::NoRoute { .. } => (StatusCode::NOT_FOUND, ErrorCode::NotFound),
             ApiError::MethodNotAllowed { .. } => {

@@ -13,7 +13,7 @@ use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use pvsd_proto::json::{
     AutoInfo, Bounds, FrameResponse, JoinRequest, MoveRequest, ObjectInfo, RankedMethod,
-    ReloadReport, SceneInfo, SessionCreated, SessionRequest, UserJoined, ViewRequest,
+    ReloadReport, SceneInfo, SessionCreated, SessionRequest, Stats, UserJoined, ViewRequest,
     VisibleResponse, WalkthroughCreated, WalkthroughInfo,
 };
 use pvsd_proto::xpvs as binary;
@@ -23,9 +23,11 @@ use super::extract::{RawBody, parse};
 use super::route::RouteKey;
 use super::session::Session;
 use super::state::AppState;
-use super::wire::{BoundsExt, MoveRequestExt, ViewRequestExt, method_spec};
+use super::wire::{self, BoundsExt, MoveRequestExt, ViewRequestExt, Views, method_spec};
 use crate::cull::ranking::FrameCost;
-use crate::cull::{ClientCache, CullJob, Culler, MethodSpec, SceneMethods, View};
+use crate::cull::view::gather;
+use crate::cull::{ClientCache, CullJob, Culler, MethodSpec, SceneMethods};
+use crate::geom::Region;
 use crate::scene::MoveError;
 
 /// `GET /healthz`: 200 while the server runs.
@@ -220,18 +222,21 @@ pub async fn visible(
     let req: ViewRequest = parse(&body, state.limits().json)?;
     req.check_stateless()?;
     let spec = req.method_spec()?;
-    let (method, cache) = prepare_client(&methods, &spec).await?;
-    let view = View::new(req.camera(), methods.scene())?;
-    let culled = methods.cull(&method, CullJob::new(view, cache)).await?;
+    let views = req.views(methods.scene(), Region::POINT)?;
+    let (method, cache) = prepare_client(&methods, &spec, views.has_region()).await?;
+    let job = views_job(&methods, &*method, &views, cache);
+    let culled = methods.cull(&method, job).await?;
     let (out, stats) = (culled.job.out, culled.stats);
     state.metrics().observe_cull(&id, &stats);
     if wants_binary(&headers) {
         return Ok(binary_body(binary::encode_visible(out.ids())));
     }
+    let mut stats: Stats = stats.into();
+    views.echo(&mut stats);
     let answer = VisibleResponse {
         visible: out.ids().to_vec(),
         areas: out.areas(),
-        stats: stats.into(),
+        stats,
     };
     Ok(json_body(answer.to_json()))
 }
@@ -242,15 +247,31 @@ pub async fn visible(
 async fn prepare_client(
     methods: &Arc<SceneMethods>,
     spec: &MethodSpec,
+    regions: bool,
 ) -> Result<(Arc<dyn Culler>, ClientCache), ApiError> {
-    if methods.is_resident(spec) {
-        return Ok(methods.prepare_client(spec)?);
+    if methods.is_resident_for(spec, regions) {
+        return Ok(methods.prepare_client_for(spec, regions)?);
     }
     let (methods, spec) = (methods.clone(), spec.clone());
-    tokio::task::spawn_blocking(move || methods.prepare_client(&spec))
+    tokio::task::spawn_blocking(move || methods.prepare_client_for(&spec, regions))
         .await
         .map_err(|e| ApiError::Internal(format!("building a method failed: {e}")))?
         .map_err(ApiError::from)
+}
+
+/// The job for a request's views: one traversal for views near one
+/// another when the method answers for regions ([`gather`]).
+fn views_job(
+    methods: &SceneMethods,
+    method: &dyn Culler,
+    views: &Views,
+    cache: ClientCache,
+) -> CullJob {
+    let regions = methods.answers_regions(method.name());
+    let (view, also) = gather(views.views.clone(), regions, methods.scene());
+    let mut job = CullJob::new(view, cache);
+    job.also = also;
+    job
 }
 
 /// The scene and method spec of a `SessionRequest` body (sessions and
@@ -258,11 +279,12 @@ async fn prepare_client(
 fn scene_and_spec(
     state: &AppState,
     body: &[u8],
-) -> Result<(Arc<SceneMethods>, MethodSpec), ApiError> {
+) -> Result<(Arc<SceneMethods>, MethodSpec, Region), ApiError> {
     let req: SessionRequest = parse(body, state.limits().json)?;
     let methods = state.scene(&req.scene)?;
     let spec = method_spec(req.method.as_deref(), &req.options)?;
-    Ok((methods, spec))
+    let region = wire::region(req.radius, req.angle, Region::POINT)?;
+    Ok((methods, spec, region))
 }
 
 /// `POST /sessions`: a session of one scene and method, its id minted on
@@ -273,12 +295,12 @@ pub async fn create_session(
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<SessionCreated>), ApiError> {
     let route = RouteKey::of_request(&headers)?;
-    let (methods, spec) = scene_and_spec(&state, &body)?;
-    let (method, cache) = prepare_client(&methods, &spec).await?;
+    let (methods, spec, region) = scene_and_spec(&state, &body)?;
+    let (method, cache) = prepare_client(&methods, &spec, !region.is_point()).await?;
     let name = method.name().to_string();
     let session = state
         .sessions()
-        .insert(Session::new(&route, methods, method, cache, None));
+        .insert(Session::new(&route, methods, method, cache, None).with_region(region));
     Ok((
         StatusCode::CREATED,
         Json(SessionCreated {
@@ -300,8 +322,15 @@ pub async fn answer_frame(
     let session = on_current_scene(state, state.sessions().get(sid)?).await?;
     let req: ViewRequest = parse(body, state.limits().json)?;
     req.check_frame()?;
-    let view = View::new(req.camera(), session.scene.scene())?;
-    let answered = session.frame(view, req.base).await?;
+    let scene = &session.scene;
+    let views = req.views(scene.scene(), session.region)?;
+    let regions = scene.answers_regions(session.method.name());
+    if views.has_region() && !regions {
+        scene.check_regions(session.method.name())?;
+    }
+    let pose = (*views.views[0].camera(), views.radius);
+    let job_views = gather(views.views.clone(), regions, scene.scene());
+    let answered = session.frame(job_views, pose, req.base).await?;
     if let Some(user) = &session.user {
         // Keeps the walkthrough alive while its users walk.
         let _ = state.walkthroughs().get(&user.walkthrough.id);
@@ -314,7 +343,9 @@ pub async fn answer_frame(
         .observe_cull(&session.scene.scene().id, &answered.stats);
     let mut frame = answered.frame;
     if with_stats {
-        frame.stats = Some(answered.stats.into());
+        let mut stats: Stats = answered.stats.into();
+        views.echo(&mut stats);
+        frame.stats = Some(stats);
     }
     Ok(frame)
 }
@@ -329,7 +360,8 @@ async fn on_current_scene(
     if Arc::ptr_eq(&current, &session.scene) {
         return Ok(session);
     }
-    let (method, cache) = prepare_client(&current, &session.spec()).await?;
+    let regions = !session.region.is_point();
+    let (method, cache) = prepare_client(&current, &session.spec(), regions).await?;
     let moved = session.rebound(current, method, cache).await;
     state.sessions().replace(&session, moved)
 }
@@ -366,10 +398,15 @@ pub async fn create_walkthrough(
     RawBody(body): RawBody,
 ) -> Result<(StatusCode, Json<WalkthroughCreated>), ApiError> {
     let route = RouteKey::of_request(&headers)?;
-    let (methods, spec) = scene_and_spec(&state, &body)?;
+    let (methods, spec, region) = scene_and_spec(&state, &body)?;
     // Refuse a bad method now rather than at the first user.
-    let method = prepare_client(&methods, &spec).await?.0.name();
-    let w = state.walkthroughs().create(&route, methods, spec, method);
+    let method = prepare_client(&methods, &spec, !region.is_point())
+        .await?
+        .0
+        .name();
+    let w = state
+        .walkthroughs()
+        .create(&route, methods, spec, method, region);
     Ok((
         StatusCode::CREATED,
         Json(WalkthroughCreated {
@@ -400,22 +437,18 @@ pub async fn join_walkthrough(
         (Err(_), Some(scene)) => {
             let methods = state.scene(scene)?;
             let spec = method_spec(req.method.as_deref(), &req.options)?;
-            let method = prepare_client(&methods, &spec).await?.0.name();
+            let method = prepare_client(&methods, &spec, false).await?.0.name();
             state
                 .walkthroughs()
                 .get_or_recreate(&wid, methods, spec, method)?
         }
     };
-    let (method, cache) = prepare_client(&w.scene, &w.spec).await?;
+    let (method, cache) = prepare_client(&w.scene, &w.spec, !w.region.is_point()).await?;
     let user = w.join();
     let user_id = user.id.clone();
-    let session = state.sessions().insert(Session::new(
-        &w.route,
-        w.scene.clone(),
-        method,
-        cache,
-        Some(user),
-    ));
+    let session = state.sessions().insert(
+        Session::new(&w.route, w.scene.clone(), method, cache, Some(user)).with_region(w.region),
+    );
     Ok((
         StatusCode::CREATED,
         Json(UserJoined {

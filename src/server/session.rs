@@ -30,6 +30,7 @@ use crate::cull::{
     ClientCache, CullJob, CullStats, Culler, MethodOptions, MethodSpec, Occludees, SceneMethods,
     View, VisibleSet,
 };
+use crate::geom::{Camera, Region};
 use moka::notification::RemovalCause;
 use moka::ops::compute::Op;
 use moka::policy::EvictionPolicy;
@@ -51,6 +52,9 @@ pub struct Session {
     pub method: Arc<dyn Culler>,
     /// The walkthrough and user it belongs to, if any.
     pub user: Option<User>,
+    /// The region of frames that give none (`POST /sessions`'s `radius`
+    /// and `angle`).
+    pub region: Region,
     /// The method's options, to make its cache again if a failed cull lost it.
     options: MethodOptions,
     /// Its bytes when made (what the store first weighs it at).
@@ -120,10 +124,17 @@ impl Session {
             scene,
             method,
             user,
+            region: Region::POINT,
             options,
             created_bytes: frames.weighed,
             frames: Arc::new(tokio::sync::Mutex::new(frames)),
         }
+    }
+
+    /// The session with `region` for frames that give none.
+    pub fn with_region(mut self, region: Region) -> Session {
+        self.region = region;
+        self
     }
 
     /// The method and options its frames are answered with.
@@ -145,7 +156,8 @@ impl Session {
     ) -> Session {
         let next = self.frames.lock().await.next;
         let route = RouteKey::of_id(&self.id).unwrap_or_else(RouteKey::random);
-        let mut session = Session::new(&route, scene, method, cache, self.user.clone());
+        let mut session =
+            Session::new(&route, scene, method, cache, self.user.clone()).with_region(self.region);
         session.id = self.id.clone();
         session.frames.lock().await.next = next;
         session
@@ -153,13 +165,22 @@ impl Session {
 
     /// Answers one frame, after every frame that reached the session
     /// before it; the cull runs where the session's method runs.
-    pub async fn frame(&self, view: View, base: Option<u64>) -> Result<Answered, ApiError> {
+    ///
+    /// `view` and `also` are the job's views ([`crate::cull::view::gather`]);
+    /// `pose` is the camera the user (in a walkthrough) stands at, anywhere
+    /// within `radius` of its eye.
+    pub async fn frame(
+        &self,
+        (view, also): (View, Vec<View>),
+        (pose, radius): (Camera, f64),
+        base: Option<u64>,
+    ) -> Result<Answered, ApiError> {
         let mut frames = self.frames.lock().await;
         // The user moves before looking, so others see where it is now.
         let others = self
             .user
             .as_ref()
-            .map(|u| u.moved(view.camera(), &self.scene.scene().origin));
+            .map(|u| u.moved(&pose, radius, &self.scene.scene().origin));
         let f = &mut *frames;
         let cache = match f.cache.take() {
             Some(cache) => cache,
@@ -170,6 +191,7 @@ impl Session {
                 .map_err(|e| ApiError::Internal(format!("cannot remake a session's cache: {e}")))?,
         };
         let mut job = CullJob::new(view, cache);
+        job.also = also;
         job.out = std::mem::take(&mut f.visible);
         job.occludees = std::mem::take(&mut f.occludees);
         job.occludees

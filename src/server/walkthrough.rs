@@ -19,7 +19,7 @@ use rand::Rng;
 use super::error::ApiError;
 use super::route::RouteKey;
 use crate::cull::{MethodSpec, SceneMethods};
-use crate::geom::{Aabb, Camera};
+use crate::geom::{Aabb, Camera, Region};
 
 /// Half the avatar's width and depth, metres.
 pub const AVATAR_HALF_WIDTH: f64 = 0.25;
@@ -31,9 +31,15 @@ pub const AVATAR_ABOVE_EYE: f64 = 0.1;
 /// The avatar of a user whose eye is at `eye` (world), in the scene's local
 /// coordinates (relative to `origin`), rounded outwards to `f32`.
 pub fn avatar(eye: DVec3, origin: DVec3) -> Aabb {
+    avatar_within(eye, 0.0, origin)
+}
+
+/// The box holding the avatar of a user whose eye is anywhere within
+/// `radius` of `eye` ([`avatar`] grown by `radius` on every side).
+pub fn avatar_within(eye: DVec3, radius: f64, origin: DVec3) -> Aabb {
     let e = eye - origin;
-    let lo = e - DVec3::new(AVATAR_HALF_WIDTH, AVATAR_BELOW_EYE, AVATAR_HALF_WIDTH);
-    let hi = e + DVec3::new(AVATAR_HALF_WIDTH, AVATAR_ABOVE_EYE, AVATAR_HALF_WIDTH);
+    let lo = e - DVec3::new(AVATAR_HALF_WIDTH, AVATAR_BELOW_EYE, AVATAR_HALF_WIDTH) - radius;
+    let hi = e + DVec3::new(AVATAR_HALF_WIDTH, AVATAR_ABOVE_EYE, AVATAR_HALF_WIDTH) + radius;
     Aabb::enclosing(lo, hi)
 }
 
@@ -50,12 +56,16 @@ pub struct Walkthrough {
     pub spec: MethodSpec,
     /// The method's resolved name.
     pub method: &'static str,
+    /// The region its users' frames get when they give none.
+    pub region: Region,
     users: Mutex<BTreeMap<String, Presence>>,
 }
 
 #[derive(Default)]
 struct Presence {
     pose: Option<Camera>,
+    /// How far from its pose's eye the user may be (its frames' radius).
+    radius: f64,
     frames: u64,
 }
 
@@ -75,6 +85,7 @@ impl Walkthrough {
         scene: Arc<SceneMethods>,
         spec: MethodSpec,
         method: &'static str,
+        region: Region,
     ) -> Walkthrough {
         Walkthrough {
             id,
@@ -82,6 +93,7 @@ impl Walkthrough {
             scene,
             spec,
             method,
+            region,
             users: Mutex::new(BTreeMap::new()),
         }
     }
@@ -130,16 +142,25 @@ impl Walkthrough {
 impl User {
     /// Records the user's new camera; returns every other user that has a
     /// pose, with its avatar (local coordinates), by user id.
-    pub fn moved(&self, camera: &Camera, origin: &DVec3) -> Vec<(String, Aabb)> {
+    ///
+    /// The user may stand anywhere within `radius` of the camera's eye (a
+    /// client that keeps a region answer while it moves): each avatar is
+    /// grown by its own user's radius, so a view that sees any place its
+    /// user may be reports it.
+    pub fn moved(&self, camera: &Camera, radius: f64, origin: &DVec3) -> Vec<(String, Aabb)> {
         let mut users = self.walkthrough.lock();
         if let Some(me) = users.get_mut(&self.id) {
             me.pose = Some(*camera);
+            me.radius = radius;
             me.frames += 1;
         }
         users
             .iter()
             .filter(|(id, _)| **id != self.id)
-            .filter_map(|(id, p)| p.pose.map(|c| (id.clone(), avatar(c.eye, *origin))))
+            .filter_map(|(id, p)| {
+                p.pose
+                    .map(|c| (id.clone(), avatar_within(c.eye, p.radius, *origin)))
+            })
             .collect()
     }
 
@@ -174,6 +195,7 @@ impl Walkthroughs {
         scene: Arc<SceneMethods>,
         spec: MethodSpec,
         method: &'static str,
+        region: Region,
     ) -> Arc<Walkthrough> {
         let w = Arc::new(Walkthrough::new(
             route.mint(),
@@ -181,6 +203,7 @@ impl Walkthroughs {
             scene,
             spec,
             method,
+            region,
         ));
         self.live.insert(w.id.clone(), w.clone());
         w
@@ -203,7 +226,16 @@ impl Walkthroughs {
             RouteKey::of_id(id).ok_or_else(|| ApiError::UnknownWalkthrough(id.to_string()))?;
         let entry = self.live.entry(id.to_string()).or_insert_with(|| {
             tracing::info!(walkthrough = %id, "a lost walkthrough made again as its users rejoin");
-            Arc::new(Walkthrough::new(id.to_string(), route, scene, spec, method))
+            // Its users' frames say their own radius (a walkthrough made
+            // again knows only what the join request carries).
+            Arc::new(Walkthrough::new(
+                id.to_string(),
+                route,
+                scene,
+                spec,
+                method,
+                Region::POINT,
+            ))
         });
         Ok((entry.value().clone(), entry.is_fresh()))
     }

@@ -11,20 +11,61 @@ use glam::{DMat4, DQuat, DVec3};
 use pvsd_proto::json::{Bounds, MoveRequest, Number, Stats, ViewRequest};
 
 use super::error::ApiError;
+use crate::cull::View;
 use crate::cull::{CullStats, MethodOptions, MethodSpec};
-use crate::geom::Camera;
+use crate::geom::{Camera, Region};
 use crate::scene::MoveError;
+use crate::scene::Scene;
 
 fn vec3(v: [Number; 3]) -> DVec3 {
     DVec3::new(v[0].0, v[1].0, v[2].0)
+}
+
+/// At most this many views in one request's `views`.
+pub const MAX_VIEWS: usize = 8;
+
+/// A request's views, validated against a scene.
+#[derive(Clone, Debug)]
+pub struct Views {
+    /// One or more (at most [`MAX_VIEWS`]).
+    pub views: Vec<View>,
+    /// The largest radius asked.
+    pub radius: f64,
+    /// The largest angle asked, degrees.
+    pub angle: f64,
+}
+
+impl Views {
+    /// Whether any view asks for a region.
+    pub fn has_region(&self) -> bool {
+        self.views.iter().any(|v| !v.region().is_point())
+    }
+
+    /// The request's echo in an answer's stats: the region and the number
+    /// of views, when they are not a single point view.
+    pub fn echo(&self, stats: &mut Stats) {
+        if self.has_region() {
+            stats.radius = Some(self.radius);
+            stats.angle = Some(self.angle);
+        }
+        if self.views.len() > 1 {
+            stats.views = Some(self.views.len() as u32);
+        }
+    }
 }
 
 /// What the server makes of a [`ViewRequest`].
 pub trait ViewRequestExt {
     /// The camera (not yet validated: `View::new` does that, naming
     /// fields). Absent fields take [`Camera::default`]'s values; `aspect`
-    /// defaults to the viewport's.
-    fn camera(&self) -> Camera;
+    /// defaults to the viewport's. A missing `eye` or `forward` is
+    /// refused by name.
+    fn camera(&self) -> Result<Camera, ApiError>;
+
+    /// The views asked for (one, or each of `views`), each valid for its
+    /// region: its own `radius` and `angle`, else the request's, else
+    /// `default` (a session's). Errors name the field (`views[1].eye[0]`).
+    fn views(&self, scene: &Scene, default: Region) -> Result<Views, ApiError>;
 
     /// The method and its options.
     fn method_spec(&self) -> Result<MethodSpec, ApiError>;
@@ -37,8 +78,24 @@ pub trait ViewRequestExt {
     fn check_frame(&self) -> Result<(), ApiError>;
 }
 
+/// A region from a request's optional fields, falling back to `default`'s.
+pub fn region(
+    radius: Option<Number>,
+    angle: Option<Number>,
+    default: Region,
+) -> Result<Region, ApiError> {
+    Region::new(
+        radius.map_or(default.radius(), |n| n.0),
+        angle.map_or(default.angle_deg(), |n| n.0),
+    )
+    .map_err(|e| ApiError::InvalidView(e.to_string()))
+}
+
 impl ViewRequestExt for ViewRequest {
-    fn camera(&self) -> Camera {
+    fn camera(&self) -> Result<Camera, ApiError> {
+        let missing = |field: &str| {
+            ApiError::MalformedJson(format!("missing field `{field}` (or give views)"))
+        };
         let d = Camera::default();
         let viewport = self.viewport.unwrap_or(d.viewport);
         let aspect = match (self.aspect, self.viewport) {
@@ -46,16 +103,80 @@ impl ViewRequestExt for ViewRequest {
             (None, Some([w, h])) if w > 0 && h > 0 => w as f64 / h as f64,
             _ => d.aspect,
         };
-        Camera {
-            eye: vec3(self.eye),
-            forward: vec3(self.forward),
+        Ok(Camera {
+            eye: vec3(self.eye.ok_or_else(|| missing("eye"))?),
+            forward: vec3(self.forward.ok_or_else(|| missing("forward"))?),
             up: self.up.map_or(d.up, vec3),
             fov_y_deg: self.fov_y_deg.map_or(d.fov_y_deg, |n| n.0),
             aspect,
             near: self.near.map_or(d.near, |n| n.0),
             far: self.far.map_or(d.far, |n| n.0),
             viewport,
+        })
+    }
+
+    fn views(&self, scene: &Scene, default: Region) -> Result<Views, ApiError> {
+        let outer = region(self.radius, self.angle, default)?;
+        let Some(list) = &self.views else {
+            let view = View::with_region(self.camera()?, outer, scene)?;
+            return Ok(Views {
+                views: vec![view],
+                radius: outer.radius(),
+                angle: outer.angle_deg(),
+            });
+        };
+        let own = [
+            ("eye", self.eye.is_some()),
+            ("forward", self.forward.is_some()),
+            ("up", self.up.is_some()),
+            ("fov_y_deg", self.fov_y_deg.is_some()),
+            ("aspect", self.aspect.is_some()),
+            ("near", self.near.is_some()),
+            ("far", self.far.is_some()),
+            ("viewport", self.viewport.is_some()),
+        ];
+        if let Some((field, _)) = own.iter().find(|(_, given)| *given) {
+            return Err(ApiError::MalformedJson(format!(
+                "{field}: a request with views gives each view's camera inside views, not beside it"
+            )));
         }
+        if list.is_empty() || list.len() > MAX_VIEWS {
+            return Err(ApiError::InvalidView(format!(
+                "views must hold 1 to {MAX_VIEWS} views, got {}",
+                list.len()
+            )));
+        }
+        let mut out = Views {
+            views: Vec::with_capacity(list.len()),
+            radius: 0.0,
+            angle: 0.0,
+        };
+        for (i, v) in list.iter().enumerate() {
+            let inner = [
+                ("method", v.method.is_some()),
+                ("options", !v.options.is_empty()),
+                ("base", v.base.is_some()),
+                ("views", v.views.is_some()),
+            ];
+            if let Some((field, _)) = inner.iter().find(|(_, given)| *given) {
+                return Err(ApiError::MalformedJson(format!(
+                    "views[{i}].{field}: a view inside views has only a camera, radius and angle"
+                )));
+            }
+            let named = |e: ApiError| match e {
+                ApiError::InvalidView(m) => ApiError::InvalidView(format!("views[{i}].{m}")),
+                ApiError::MalformedJson(m) => ApiError::MalformedJson(format!("views[{i}].{m}")),
+                other => other,
+            };
+            let r = region(v.radius, v.angle, outer).map_err(named)?;
+            let camera = v.camera().map_err(named)?;
+            let view = View::with_region(camera, r, scene)
+                .map_err(|e| ApiError::InvalidView(format!("views[{i}].{e}")))?;
+            out.radius = out.radius.max(r.radius());
+            out.angle = out.angle.max(r.angle_deg());
+            out.views.push(view);
+        }
+        Ok(out)
     }
 
     fn method_spec(&self) -> Result<MethodSpec, ApiError> {
@@ -168,6 +289,9 @@ impl From<CullStats> for Stats {
             visible: s.visible,
             fallback,
             fallback_reason,
+            radius: None,
+            angle: None,
+            views: None,
         }
     }
 }

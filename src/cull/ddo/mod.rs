@@ -129,6 +129,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     purpose: "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
     options: &OPTIONS,
     checked_with: &["regions=32", "map=grid:cells=16", "splits=2"],
+    regions: Some("its octree faces are proven occluders from direction regions of single eyes, not shrunk for a ball of eyes, and its occlusion map is drawn on one camera's plane"),
     build,
 };
 

@@ -29,6 +29,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     purpose: "view-frustum culling over the kd-tree; the exact in-frustum set, and the fallback of every other method",
     options: &[],
     checked_with: &[],
+    regions: None,
     build,
 };
 

@@ -120,6 +120,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     purpose: "hardware occlusion queries on a Vulkan device, lavapipe on the CPU (Tai & Hsu)",
     options: &OPTIONS,
     checked_with: &["batch=1", "tier=0"],
+    regions: Some("its occlusion queries are drawn at the request's viewport for one camera, and its occluder proxies are not shrunk for a ball of eyes"),
     build,
 };
 

@@ -39,6 +39,21 @@
 //! near-vertical part of the view) is never projected and gets frustum
 //! culling only. With the eye below `G`, the view is frustum culled.
 //!
+//! Regions (a request's `radius` and `angle`): the sweep runs from the top
+//! of the ball, `c + (0, r, 0)`, over prisms whose footprints are shrunk by
+//! `r` (their erosion by a disc). A ray from that eye to a point `p` that
+//! a shrunk mask hides passes through a shrunk prism at some parameter `t`;
+//! the ray to `p` from any eye `c'` with `|c'ₓ₂ − cₓ₂| ≤ r` and
+//! `G ≤ c'.y ≤ c.y + r` is within `(1 − t) r ≤ r` of it horizontally at
+//! `t` (so over the whole footprint) and no higher there (heights
+//! interpolate linearly between eye and `p`), and not below `G` (both ends
+//! are not): it passes through the whole prism, so through the object's
+//! surface, since no such eye is inside the object's box (prisms of boxes
+//! the cylinder reaches are not used). The cylinder holds the ball when the
+//! ball is not below `G`; when it is, the view gets frustum culling only.
+//! The top is not lowered (the highest eye already sees the most over it);
+//! the `angle` is the view's enclosing frustum alone.
+//!
 //! Levels of detail (§3.6): with `areas=true` each visible object carries an
 //! upper bound of the pixels it can cover: the pixel centres inside the
 //! smaller of its box's screen rectangle and the screen rectangle of its
@@ -113,6 +128,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     purpose: "occlusion horizons over convex vertical prisms (Downs et al.): cities standing on a ground",
     options: &OPTIONS,
     checked_with: &["columns=64"],
+    regions: None,
     build,
 };
 
@@ -275,6 +291,9 @@ struct Sweep {
     x1: f64,
     /// Whether masks may be used at all (the eye is not below the ground).
     occludes: bool,
+    /// How far prisms are shrunk horizontally (a region's radius, rounded
+    /// up; 0 for a point view).
+    shrink: f64,
 }
 
 impl Sweep {
@@ -289,7 +308,11 @@ impl Sweep {
             .or_else(|| horizontal(basis.up).try_normalize())
             .unwrap_or(DVec3::X);
         let r = DVec3::new(-d.z, 0.0, d.x);
-        let eye = view.eye();
+        // A region sweeps from the top of its ball, with prisms shrunk by
+        // its radius (module docs, "Regions").
+        let radius = view.region().radius();
+        let centre = view.eye();
+        let eye = centre + DVec3::Y * radius;
         let (mut x0, mut x1, mut clamped) = (f64::INFINITY, f64::NEG_INFINITY, true);
         for c in &view.frustum().corners()[4..] {
             let rel = *c - eye;
@@ -305,7 +328,13 @@ impl Sweep {
         if !clamped {
             (x0, x1) = (-WIDE_WINDOW, WIDE_WINDOW);
         }
-        let occludes = eye.y >= ground && x0.is_finite() && x1.is_finite() && x0 < x1;
+        let occludes =
+            centre.y - radius >= ground && x0.is_finite() && x1.is_finite() && x0 < x1;
+        let shrink = if radius > 0.0 {
+            radius * (1.0 + 1e-9) + centre.abs().max_element() * 16.0 * f64::EPSILON
+        } else {
+            0.0
+        };
         Sweep {
             eye,
             d,
@@ -314,7 +343,21 @@ impl Sweep {
             x0,
             x1,
             occludes,
+            shrink,
         }
+    }
+
+    /// Whether some eye of the view may be inside `b`, whose prisms then
+    /// hide nothing: for a region, any eye of the upright cylinder of
+    /// radius `shrink` from the ground to the sweep's eye.
+    fn reaches_into(&self, b: &Aabb) -> bool {
+        if self.shrink == 0.0 {
+            return contains(b, self.eye);
+        }
+        let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+        let gap = |v: f64, lo: f64, hi: f64| (lo - v).max(v - hi).max(0.0);
+        let (gx, gz) = (gap(self.eye.x, lo.x, hi.x), gap(self.eye.z, lo.z, hi.z));
+        gx * gx + gz * gz <= self.shrink * self.shrink && lo.y <= self.eye.y
     }
 
     /// The bounding frame of a box when masks may hide it: `None` when the
@@ -372,7 +415,14 @@ impl Sweep {
         let (mut x_lo, mut x_hi) = (f64::INFINITY, f64::NEG_INFINITY);
         let (mut near, mut far) = (f64::INFINITY, f64::NEG_INFINITY);
         let rise = prism.top - self.eye.y;
-        for v in &prism.footprint {
+        let shrunk;
+        let footprint = if self.shrink > 0.0 {
+            shrunk = prism.shrunk_footprint(self.shrink)?;
+            &shrunk
+        } else {
+            &prism.footprint
+        };
+        for v in footprint {
             let rel = DVec3::new(v.x - self.eye.x, rise, v.y - self.eye.z);
             let t = rel.dot(self.d);
             if t.partial_cmp(&(DEPTH_EPSILON * rel.abs().max_element())) != Some(Ordering::Greater)
@@ -586,7 +636,7 @@ impl CullMethod for HorizonCulling {
                         _ => out.push(id),
                     }
                     // Even a dropped object occludes: its prisms are real.
-                    if sweep.occludes && !contains(bounds, sweep.eye) {
+                    if sweep.occludes && !sweep.reaches_into(bounds) {
                         for prism in self.prisms.of(id) {
                             if let Some((mask, far)) = sweep.mask(prism) {
                                 state.queue.push(Event {
@@ -633,6 +683,10 @@ fn area_bound(
     let (tx, ty) = cam.half_tangents();
     let [w, h] = cam.viewport.map(f64::from);
     let whole = w * h;
+    if !view.region().is_point() {
+        // A region's views see a box at other pixels: no tighter bound.
+        return whole;
+    }
     // Pixel coordinates of a direction, when it points ahead of the camera.
     let pixel = |v: DVec3| -> Option<(f64, f64)> {
         let z = v.dot(basis.forward);
@@ -724,6 +778,7 @@ mod tests {
                 x0: -1.0,
                 x1: 1.0,
                 occludes: true,
+                shrink: 0.0,
             };
             let c = Vec3::new(next() as f32, next() as f32, next() as f32) * 400.0;
             let h = Vec3::new(next() as f32, next() as f32, next() as f32).abs() * 60.0;

@@ -69,6 +69,48 @@ pub struct Prism {
     pub top: f64,
 }
 
+impl Prism {
+    /// The footprint with every edge moved inwards by `by` (its erosion by
+    /// a disc of radius `by`), or `None` when nothing is left: a footprint
+    /// point of the result has the whole disc of radius `by` around it in
+    /// the footprint. Rounding is the caller's to cover (ask for more).
+    pub fn shrunk_footprint(&self, by: f64) -> Option<Vec<DVec2>> {
+        let n = self.footprint.len();
+        if n < 3 {
+            return None;
+        }
+        let centre = self.footprint.iter().copied().sum::<DVec2>() / n as f64;
+        let mut part = self.footprint.clone();
+        for i in 0..n {
+            let (a, b) = (self.footprint[i], self.footprint[(i + 1) % n]);
+            let Some(mut inward) = (b - a).perp().try_normalize() else {
+                continue;
+            };
+            if inward.dot(centre - a) < 0.0 {
+                inward = -inward;
+            }
+            // Keep where `inward · (p − a) ≥ by`.
+            let dist = |p: DVec2| inward.dot(p - a) - by;
+            let mut next = Vec::with_capacity(part.len() + 1);
+            for k in 0..part.len() {
+                let (p, q) = (part[k], part[(k + 1) % part.len()]);
+                let (dp, dq) = (dist(p), dist(q));
+                if dp >= 0.0 {
+                    next.push(p);
+                }
+                if (dp >= 0.0) != (dq >= 0.0) {
+                    next.push(p + (q - p) * (dp / (dp - dq)));
+                }
+            }
+            if next.len() < 3 {
+                return None;
+            }
+            part = next;
+        }
+        Some(part)
+    }
+}
+
 /// What a bake of the prisms depends on beyond the scene file: change it
 /// whenever how prisms are proven changes, so that old bakes are rebuilt.
 const BAKE_PARAMS: &str = "prisms-v1";

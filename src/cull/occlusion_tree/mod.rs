@@ -38,7 +38,7 @@ use super::{
 };
 use glam::DVec3;
 
-use crate::geom::{Aabb, Plane};
+use crate::geom::{Aabb, Plane, Region};
 
 /// The method's registry entry; the table checks every variant and a
 /// small, history-free pick.
@@ -52,6 +52,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
         "k=8:temporal=false:min_cost=0",
         "clip=true",
     ],
+    regions: None,
     build,
 };
 
@@ -85,12 +86,12 @@ pub struct OcclusionTreeState {
     selection: Selection,
     /// Rebuilt each frame in the same buffers.
     tree: OcclusionTree,
-    /// What `tree` was built for: the eye, the near plane and the picked
-    /// occluders. Shadow planes pass through the eye and occluders are cut
-    /// at the near plane, so a tree serves again only a frame with all
-    /// three unchanged (a camera standing still, or turning about an axis
+    /// What `tree` was built for: the eye, the near plane, the region (its
+    /// occluders are shrunk for it) and the picked occluders. Shadow planes
+    /// pass through the eye and occluders are cut at the near plane, so a
+    /// tree serves again only a frame with all four unchanged (a camera standing still, or turning about an axis
     /// that keeps its near plane); then it is not rebuilt.
-    built_for: Option<(DVec3, Plane, Vec<u32>)>,
+    built_for: Option<(DVec3, Plane, Region, Vec<u32>)>,
 }
 
 /// The variants, in `variant=` spelling; the first is the default.
@@ -151,7 +152,7 @@ impl CullMethod for OcclusionTreeCulling {
         let same = state
             .built_for
             .as_ref()
-            .is_some_and(|(e, n, p)| *e == eye && *n == near && *p == picked);
+            .is_some_and(|(e, n, r, p)| *e == eye && *n == near && *r == view.region() && *p == picked);
         if !same {
             let mut order: Vec<(f64, u32)> = picked
                 .iter()
@@ -180,7 +181,7 @@ impl CullMethod for OcclusionTreeCulling {
                 variant != Variant::Fse,
                 eps,
             );
-            state.built_for = Some((eye, near, picked));
+            state.built_for = Some((eye, near, view.region(), picked));
         }
         let occlusion = &*occlusion;
         let mut test = |_: Target, b: &Aabb| match variant {
@@ -200,6 +201,6 @@ impl CullMethod for OcclusionTreeCulling {
             + state
                 .built_for
                 .as_ref()
-                .map_or(0, |b| b.2.capacity() * std::mem::size_of::<u32>())
+                .map_or(0, |b| b.3.capacity() * std::mem::size_of::<u32>())
     }
 }

@@ -89,6 +89,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     purpose: "a conservative depth buffer on the CPU (SIMD) drawn from visible surfaces as a front-to-back walk finds them: general scenes",
     options: &OPTIONS,
     checked_with: &["cell=1", "simd=false:splits=0", "min_size=0:budget=64"],
+    regions: Some("its depth buffer is drawn at the request's viewport for one camera: the views of a region cover other pixels"),
     build,
 };
 

@@ -40,6 +40,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     purpose: "supporting and separating planes against large occluders, cached between frames (Coorg & Teller)",
     options: &SelectionOptions::KEYS,
     checked_with: &["k=8:temporal=false:min_cost=0"],
+    regions: None,
     build,
 };
 
