@@ -15,7 +15,7 @@ use pvsd::cull::{
     AUTO_CHOICE, MethodContext, MethodSpec, Registry, SceneMethods, View, VisibleSet,
 };
 use pvsd::eval::{EvalParams, RankParams, WalkParams, rank, rank_cached};
-use pvsd::geom::Camera;
+use pvsd::geom::{Camera, Region};
 use pvsd::scene::generate::{
     CadOptions, CityOptions, CrowdOptions, OfficeOptions, cad, city, crowd, office,
 };
@@ -116,6 +116,19 @@ struct EvalArgs {
     /// Modelled cost of drawing one triangle, nanoseconds (frame cost model).
     #[arg(long, default_value_t = 2.0)]
     cost_per_triangle_ns: f64,
+    /// Answers valid for every eye within this distance of each frame's
+    /// eye: each answer is held to the truths of cameras sampled in the
+    /// ball (and cone), and the PVS growth against point views is reported.
+    #[arg(long, default_value_t = 0.0)]
+    radius: f64,
+    /// Answers valid for every direction within this many degrees of each
+    /// frame's.
+    #[arg(long, default_value_t = 0.0)]
+    angle: f64,
+    /// The speed of the walking client whose saved requests a region
+    /// reports (scene units per second, at 30 frames a second).
+    #[arg(long, default_value_t = 1.4)]
+    walker_speed: f64,
     /// Write the report as JSON here.
     #[arg(long, value_name = "OUT.json")]
     json: Option<PathBuf>,
@@ -754,6 +767,9 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
             ..WalkParams::default()
         },
         cost_per_triangle_ns: args.cost_per_triangle_ns,
+        region: Region::new(args.radius, args.angle)
+            .map_err(|e| anyhow::anyhow!("--{} {}", e.field, e.problem))?,
+        walker_speed: args.walker_speed,
     };
     let bar = ProgressBar::new(args.frames as u64).with_style(
         ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} frames, {eta} left")

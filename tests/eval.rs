@@ -97,6 +97,7 @@ fn metrics_by_hand_on_a_tiny_scene() {
             ..WalkParams::default()
         },
         cost_per_triangle_ns: 1000.0,
+        ..EvalParams::default()
     };
     let frustum = Contender::from_spec(&methods, &MethodSpec::named("frustum").unwrap()).unwrap();
     let fixed = Contender::new("fixed", Arc::new(Fixed(vec![0, 3])), MethodOptions::new()).unwrap();

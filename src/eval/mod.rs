@@ -12,6 +12,7 @@
 //! triangle, so the report shows when culling pays.
 
 mod rank;
+mod region;
 mod report;
 mod walk;
 
@@ -19,7 +20,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 pub use rank::{RankParams, rank, rank_cached};
-pub use report::{EvalReport, MethodReport, write_svg};
+pub use region::{request_share, sample_cameras};
+pub use report::{EvalReport, MethodReport, RegionReport, write_svg};
 pub use walk::{WalkError, WalkKind, WalkParams, resample, walk};
 
 use crate::cull::dispatch::cull_here;
@@ -28,7 +30,7 @@ use crate::cull::{
     ClientCache, CullError, CullJob, Culler, MethodError, MethodOptions, MethodSpec, SceneMethods,
     View, VisibleSet,
 };
-use crate::geom::Camera;
+use crate::geom::{Camera, Region};
 use crate::scene::Scene;
 use crate::truth::Truth;
 
@@ -40,6 +42,13 @@ pub struct EvalParams {
     /// Modelled cost of drawing one triangle, nanoseconds (frame cost =
     /// cull time + PVS triangles × this).
     pub cost_per_triangle_ns: f64,
+    /// The region every answer must hold for (`--radius`, `--angle`):
+    /// each frame's answer is held to the truths of cameras sampled in it
+    /// ([`sample_cameras`]).
+    pub region: Region,
+    /// The speed of the walking client whose requests a region saves
+    /// ([`request_share`]), scene units per second.
+    pub walker_speed: f64,
 }
 
 impl Default for EvalParams {
@@ -48,6 +57,8 @@ impl Default for EvalParams {
         EvalParams {
             walk: WalkParams::default(),
             cost_per_triangle_ns: 2.0,
+            region: Region::POINT,
+            walker_speed: 1.4,
         }
     }
 }
@@ -112,7 +123,17 @@ impl Contender {
 
     /// A contender for a method of `methods` named by `spec`.
     pub fn from_spec(methods: &SceneMethods, spec: &MethodSpec) -> Result<Self, MethodError> {
-        let (method, options) = methods.resolve(spec)?;
+        Contender::for_regions(methods, spec, false)
+    }
+
+    /// [`Contender::from_spec`] for region answers when `regions`: a
+    /// method that cannot answer for a region is refused with why.
+    pub fn for_regions(
+        methods: &SceneMethods,
+        spec: &MethodSpec,
+        regions: bool,
+    ) -> Result<Self, MethodError> {
+        let (method, options) = methods.resolve_for(spec, regions)?;
         let label = if spec.name == "auto" {
             // Say what `auto` answered with: the table is about methods.
             format!("{spec}→{}", method.name())
@@ -144,9 +165,10 @@ pub fn evaluate(
     params: &EvalParams,
     progress: impl FnMut(usize),
 ) -> Result<EvalReport, EvalError> {
+    let regions = !params.region.is_point();
     let contenders = specs
         .iter()
-        .map(|s| Contender::from_spec(scene_methods, s))
+        .map(|s| Contender::for_regions(scene_methods, s, regions))
         .collect::<Result<Vec<_>, _>>()?;
     let cameras = walk(scene_methods.scene(), &params.walk)?;
     run(
@@ -168,16 +190,20 @@ pub fn run(
     mut progress: impl FnMut(usize),
 ) -> Result<EvalReport, EvalError> {
     let mut tallies = vec![Tally::default(); contenders.len()];
-    let views = cameras
-        .iter()
-        .enumerate()
-        .map(|(frame, camera)| {
-            View::new(*camera, scene).map_err(|e| EvalError::Camera {
-                frame,
-                problem: e.to_string(),
+    let views_for = |region: Region| {
+        cameras
+            .iter()
+            .enumerate()
+            .map(|(frame, camera)| {
+                View::with_region(*camera, region, scene).map_err(|e| EvalError::Camera {
+                    frame,
+                    problem: e.to_string(),
+                })
             })
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<Vec<_>, _>>()
+    };
+    let views = views_for(params.region)?;
+    let is_region = !params.region.is_point();
     // First each method runs the whole walk on its own, frame after frame,
     // as a server runs a session: what is timed is the method with the
     // caches its own frames leave, not the method after a truth render has
@@ -187,18 +213,54 @@ pub fn run(
         .zip(&mut tallies)
         .map(|(c, tally)| time_walk(scene, c, &views, params, tally))
         .collect::<Result<_, _>>()?;
+    // For a region, the same methods on the walk's point views: what the
+    // region costs in PVS.
+    let point_pvs: Vec<Option<f64>> = if is_region {
+        let point_views = views_for(Region::POINT)?;
+        contenders
+            .iter_mut()
+            .map(|c| {
+                let mut scratch = Tally::default();
+                let answers = time_walk(scene, c, &point_views, params, &mut scratch)?;
+                let total: usize = answers.iter().map(Vec::len).sum();
+                Ok(Some(total as f64 / answers.len().max(1) as f64))
+            })
+            .collect::<Result<_, EvalError>>()?
+    } else {
+        vec![None; contenders.len()]
+    };
+    let mut samples_per_frame = 1;
     // Then each frame's truth is rendered once and every answer held to it.
     let (mut truth_total, mut tie_total, mut truth_ms) =
         (0u64, 0u64, Vec::with_capacity(cameras.len()));
     let mut pixels = 0u64;
     for (frame, (camera, view)) in cameras.iter().zip(&views).enumerate() {
         let started = Instant::now();
-        let truth = Truth::render(scene, camera).map_err(|e| EvalError::Camera {
-            frame,
-            problem: e.to_string(),
-        })?;
+        let render = |camera: &Camera| {
+            Truth::render(scene, camera).map_err(|e| EvalError::Camera {
+                frame,
+                problem: e.to_string(),
+            })
+        };
+        let truth = render(camera)?;
+        let (mut visible, mut ties) = (truth.visible(), truth.ties());
+        if is_region {
+            // The union of the truths of the region's sampled cameras; an
+            // object a sample sees is no tie.
+            let samples = sample_cameras(camera, params.region, frame as u64);
+            samples_per_frame = samples.len();
+            for sample in &samples[1..] {
+                let t = render(sample)?;
+                visible.extend(t.visible());
+                ties.extend(t.ties());
+            }
+            visible.sort_unstable();
+            visible.dedup();
+            ties.sort_unstable();
+            ties.dedup();
+            ties.retain(|t| visible.binary_search(t).is_err());
+        }
         truth_ms.push(started.elapsed().as_secs_f64() * 1e3);
-        let (visible, ties) = (truth.visible(), truth.ties());
         truth_total += visible.len() as u64;
         tie_total += ties.len() as u64;
         pixels += truth.pixel_count();
@@ -234,7 +296,8 @@ pub fn run(
     let mut methods: Vec<MethodReport> = contenders
         .iter()
         .zip(tallies)
-        .map(|(c, t)| {
+        .zip(point_pvs)
+        .map(|((c, t), point_pvs)| {
             let mean_pvs = t.pvs as f64 / frames;
             let mean_in_frustum = t.in_frustum as f64 / frames;
             let mean_cull = t.cull_us.iter().sum::<f64>() / frames;
@@ -266,6 +329,7 @@ pub fn run(
                     + mean_pvs_triangles * params.cost_per_triangle_ns * 1e-3,
                 speedup: None,
                 miss_examples: t.examples,
+                pvs_growth: point_pvs.map(|p| ratio(mean_pvs, p)),
             }
         })
         .collect();
@@ -288,6 +352,13 @@ pub fn run(
         mean_tie_objects: tie_total as f64 / frames,
         median_truth_ms: percentile(&truth_ms, 0.5),
         methods,
+        region: is_region.then(|| RegionReport {
+            radius: params.region.radius(),
+            angle: params.region.angle_deg(),
+            samples_per_frame,
+            request_share: request_share(cameras, params.region, params.walker_speed),
+            walker_speed: params.walker_speed,
+        }),
     })
 }
 

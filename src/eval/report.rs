@@ -26,6 +26,28 @@ pub struct EvalReport {
     pub median_truth_ms: f64,
     /// One entry per method, in the order asked.
     pub methods: Vec<MethodReport>,
+    /// Only for a region (`--radius`, `--angle`): how it was checked and
+    /// what it saves a walking client.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<RegionReport>,
+}
+
+/// How an evaluation of region answers ran: each frame's answer is held
+/// to the union of the truths of cameras sampled in its region.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RegionReport {
+    /// The radius, scene units.
+    pub radius: f64,
+    /// The angle, degrees.
+    pub angle: f64,
+    /// Cameras whose truth each frame's answer was held to.
+    pub samples_per_frame: usize,
+    /// A client walking the walk at `walker_speed` m/s and 30 frames/s
+    /// that asks again only when its eye leaves the ball or its frame
+    /// turns past the angle: the share of its frames that are requests.
+    pub request_share: f64,
+    /// The walker's speed, scene units per second.
+    pub walker_speed: f64,
 }
 
 /// One method's results over the walkthrough.
@@ -66,6 +88,10 @@ pub struct MethodReport {
     pub speedup: Option<f64>,
     /// Up to 8 `(frame, object)` misses, to say where to look.
     pub miss_examples: Vec<(usize, u32)>,
+    /// Only for a region: its mean PVS over the same method's mean PVS for
+    /// the walk's point views (the price of the region).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pvs_growth: Option<f64>,
 }
 
 impl fmt::Display for EvalReport {
@@ -82,6 +108,17 @@ impl fmt::Display for EvalReport {
             self.median_truth_ms,
             self.mean_tie_objects
         )?;
+        if let Some(r) = &self.region {
+            writeln!(
+                f,
+                "region: radius {} angle {}°; each answer held to {} sampled cameras' truth; a walker at {} m/s, 30 frames/s, asks on {:.1}% of its frames",
+                r.radius,
+                r.angle,
+                r.samples_per_frame,
+                r.walker_speed,
+                r.request_share * 100.0
+            )?;
+        }
         writeln!(
             f,
             "{:<28} {:>4} {:>10} {:>10} {:>9} {:>9} {:>9} {:>7} {:>6} {:>7} {:>7} {:>8} {:>11} {:>8}",
@@ -119,6 +156,9 @@ impl fmt::Display for EvalReport {
                 m.mean_frame_cost_us,
                 m.speedup.map_or("-".to_string(), |s| format!("{s:.2}")),
             )?;
+            if let Some(g) = m.pvs_growth {
+                writeln!(f, "{:<28} PVS ×{g:.2} against point views", "")?;
+            }
         }
         Ok(())
     }
