@@ -9,8 +9,8 @@ mod common;
 use std::sync::Arc;
 
 use common::{
-    cad_scene, check_conservative, checked_methods, city_scene, crowd_scene, office_scene,
-    shared_scene,
+    cad_scene, check_conservative, check_conservative_in, checked_methods, city_scene, crowd_scene,
+    office_scene, shared_scene,
 };
 use pvsd::cull::frustum::FrustumCulling;
 use pvsd::cull::{
@@ -18,6 +18,7 @@ use pvsd::cull::{
     Registry, SceneMethods, View, VisibleSet,
 };
 use pvsd::eval::{Contender, WalkKind};
+use pvsd::geom::Region;
 use pvsd::scene::Scene;
 
 /// Frames per walk: enough to cross a scene, few enough for CI.
@@ -174,6 +175,86 @@ fn two_cylinder_engine() {
 #[test]
 fn reciprocating_saw() {
     row("reciprocating_saw");
+}
+
+/// Frames per walk for region answers: each is held to 17–31 truths.
+const REGION_FRAMES: usize = 6;
+
+/// The table's row `name` for region answers: every method (and checked
+/// option set) that answers for regions, on the row's first walk, with a
+/// ball of 1% of the scene's diagonal and a cone of 5°, then a ball alone
+/// of 3% (frames held to the truths of cameras sampled in the region).
+fn region_row(name: &str) {
+    let row = ROWS
+        .iter()
+        .find(|r| r.name == name)
+        .expect("a row of the table");
+    let scene = (row.scene)();
+    let registry = Registry::standard();
+    let methods = SceneMethods::prepare_with(scene.clone(), &registry, &common::test_context());
+    let diagonal = f64::from(scene.bounds().extent().length());
+    let mut checked = 0;
+    for region in [
+        Region::new(0.01 * diagonal, 5.0).unwrap(),
+        Region::new(0.03 * diagonal, 0.0).unwrap(),
+    ] {
+        let contenders = |m: &SceneMethods| -> Vec<Contender> {
+            checked_methods(m, &registry)
+                .into_iter()
+                .filter(|(_, method, _)| m.answers_regions(method.name()))
+                .map(|(label, method, options)| Contender::new(label, method, options).unwrap())
+                .collect()
+        };
+        checked = contenders(&methods).len();
+        check_conservative_in(&methods, &row.walks[..1], REGION_FRAMES, region, contenders)
+            .unwrap_or_else(|e| panic!("{region:?}: {e}"));
+    }
+    eprintln!("{name}: {checked} method variants answer regions, 0 misses");
+}
+
+#[test]
+fn regions_city_1k() {
+    region_row("city_1k");
+}
+
+#[test]
+fn regions_city_1k_at_1e7() {
+    region_row("city_1k_at_1e7");
+}
+
+#[test]
+fn regions_office() {
+    region_row("office");
+}
+
+#[test]
+fn regions_office_at_1e7() {
+    region_row("office_at_1e7");
+}
+
+#[test]
+fn regions_crowd() {
+    region_row("crowd");
+}
+
+#[test]
+fn regions_cad() {
+    region_row("cad");
+}
+
+#[test]
+fn regions_sponza() {
+    region_row("sponza");
+}
+
+#[test]
+fn regions_two_cylinder_engine() {
+    region_row("two_cylinder_engine");
+}
+
+#[test]
+fn regions_reciprocating_saw() {
+    region_row("reciprocating_saw");
 }
 
 /// Every standard method that is built is supported by some row of the

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use glam::DVec3;
 use pvsd::cull::{CullJob, Culler, MethodOptions, MethodSpec, Registry, SceneMethods};
 use pvsd::eval::{Contender, EvalParams, WalkKind, WalkParams};
-use pvsd::geom::Camera;
+use pvsd::geom::{Camera, Region};
 use pvsd::scene::generate::{CityOptions, OfficeOptions, city, office};
 use pvsd::scene::{Scene, load_path, load_slice};
 use rand::{Rng, SeedableRng};
@@ -151,6 +151,19 @@ pub fn check_conservative(
     frames: usize,
     make: impl Fn(&SceneMethods) -> Vec<Contender>,
 ) -> Result<(), String> {
+    check_conservative_in(methods, walks, frames, Region::POINT, make)
+}
+
+/// [`check_conservative`] for answers valid for `region`: each frame's
+/// answer is held to the union of the truths of the cameras sampled in it
+/// (`pvsd::eval::sample_cameras`, ≥ 16 for a ball or cone).
+pub fn check_conservative_in(
+    methods: &SceneMethods,
+    walks: &[WalkKind],
+    frames: usize,
+    region: Region,
+    make: impl Fn(&SceneMethods) -> Vec<Contender>,
+) -> Result<(), String> {
     let scene = methods.scene();
     let mut failures = Vec::new();
     for &kind in walks {
@@ -162,6 +175,7 @@ pub fn check_conservative(
                 viewport: CHECK_VIEWPORT,
                 ..WalkParams::default()
             },
+            region,
             ..EvalParams::default()
         };
         let cameras = pvsd::eval::walk(scene, &params.walk)
