@@ -14,7 +14,7 @@ use serde_json::{Map, Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
 use crate::stats::{Recorder, UserRecorder};
-use crate::walk::{Walk, WalkKind};
+use crate::walk::{Pose, Walk, WalkKind};
 
 /// How frames are asked for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
@@ -59,6 +59,9 @@ pub struct Plan {
     /// Session mode: frames after which a user's session is replaced by
     /// a new one (0: never).
     pub churn: u64,
+    /// The region each answer is asked valid for; a user keeps its answer
+    /// while it stays inside.
+    pub region: Region,
     /// The scene's bounds.
     pub bounds: Bounds,
     /// When to stop sending.
@@ -187,6 +190,50 @@ impl Held {
         }
         self.frame = Some(f.frame);
         Ok(())
+    }
+}
+
+/// The region a user asks its answers valid for (`--radius`, `--angle`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Region {
+    radius: f64,
+    angle: f64,
+}
+
+impl Region {
+    /// A region of `radius` metres and `angle` degrees.
+    pub fn new(radius: f64, angle: f64) -> Region {
+        Region { radius, angle }
+    }
+
+    /// The request fields (`,"radius":…,"angle":…`), empty for a point.
+    fn fields(&self) -> String {
+        if self.radius == 0.0 && self.angle == 0.0 {
+            return String::new();
+        }
+        format!(r#","radius":{},"angle":{}"#, self.radius, self.angle)
+    }
+
+    /// Whether an answer asked for at `asked` still holds at `pose`: the
+    /// eye within the radius, the direction within the angle.
+    fn holds(&self, asked: Option<Pose>, pose: Pose) -> bool {
+        if self.radius == 0.0 && self.angle == 0.0 {
+            return false;
+        }
+        let Some((eye, forward)) = asked else {
+            return false;
+        };
+        let (e, f) = (pose.0, pose.1);
+        let dist =
+            ((e[0] - eye[0]).powi(2) + (e[1] - eye[1]).powi(2) + (e[2] - eye[2]).powi(2)).sqrt();
+        let dot = f[0] * forward[0] + f[1] * forward[1] + f[2] * forward[2];
+        let norms = (f.iter().map(|x| x * x).sum::<f64>()
+            * forward.iter().map(|x| x * x).sum::<f64>())
+        .sqrt();
+        let cos = if norms > 0.0 { dot / norms } else { -1.0 };
+        // Slightly inside both, so that rounding never keeps an answer a
+        // step too long.
+        dist <= self.radius * (1.0 - 1e-9) && cos >= (self.angle * (1.0 - 1e-9)).to_radians().cos()
     }
 }
 
@@ -450,13 +497,16 @@ async fn http_user(
         return;
     };
     let method = match session {
-        Some(_) => String::new(),
+        Some(_) => plan.region.fields(),
         None => format!(
-            r#","method":{},"options":{}"#,
+            r#","method":{},"options":{}{}"#,
             json!(plan.method),
-            Value::Object(plan.options.clone())
+            Value::Object(plan.options.clone()),
+            plan.region.fields()
         ),
     };
+    // The pose of the last frame sent, whose answer holds within the region.
+    let mut asked: Option<Pose> = None;
     let held = Arc::new(Mutex::new(Held::default()));
     // Open loop: at most `max_in_flight` requests (connections) per user;
     // later frames wait their turn, as a browser queues past its
@@ -484,6 +534,11 @@ async fn http_user(
             link.churn(plan, http, &held, rec).await;
         }
         let pose = walk.next_pose();
+        if plan.region.holds(asked, pose) {
+            rec.kept();
+            continue;
+        }
+        asked = Some(pose);
         let (http, stateless, method) = (http.clone(), stateless.clone(), method.clone());
         let (held, rec, slots) = (held.clone(), rec.clone(), slots.clone());
         let (session, shared_plan) = (session.clone(), plan.clone());
@@ -499,8 +554,8 @@ async fn http_user(
             // no base the server would answer a delta against a frame
             // still on its way to the user.
             let body = match (held_frame, &session) {
-                (Some(b), Some(_)) => view(pose, &format!(r#","base":{b}"#)),
-                (None, Some(_)) => view(pose, r#","base":0"#),
+                (Some(b), Some(_)) => view(pose, &format!(r#","base":{b}{method}"#)),
+                (None, Some(_)) => view(pose, &format!(r#","base":0{method}"#)),
                 (_, None) => view(pose, &method),
             };
             let sent = body.len();
@@ -694,11 +749,20 @@ async fn ws_frames(
         })
     };
     let mut ended = true;
+    let fields = plan.region.fields();
+    let mut asked: Option<Pose> = None;
     loop {
         let Some(due) = due(plan, start, *k).await else {
             break;
         };
-        let text = view(walk.next_pose(), "");
+        let pose = walk.next_pose();
+        if plan.region.holds(asked, pose) {
+            rec.kept();
+            *k += 1;
+            continue;
+        }
+        asked = Some(pose);
+        let text = view(pose, &fields);
         let sent = text.len();
         // Queued before it is sent, so a fast answer finds its due time.
         if dues_tx.send((due, sent)).is_err() {

@@ -77,6 +77,21 @@ struct Args {
     /// Metres a user moves per frame.
     #[arg(long, default_value_t = 0.5)]
     step: f64,
+    /// Walking speed, metres a second: with it each user moves
+    /// `speed / rate` metres a frame (`--rate` defaults to 30 then),
+    /// instead of `--step`.
+    #[arg(long)]
+    speed: Option<f64>,
+    /// Ask for answers valid within this many metres of the eye: a user
+    /// keeps its last answer (sends nothing) while its eye stays within
+    /// the radius of the eye it asked for and its direction within
+    /// `--angle`, and the report says how many frames that saved.
+    #[arg(long, default_value_t = 0.0)]
+    radius: f64,
+    /// With `--radius` (or alone): answers valid within this many degrees
+    /// of the direction asked for.
+    #[arg(long, default_value_t = 0.0)]
+    angle: f64,
     /// Session mode: each user ends its session and makes a new one every
     /// this many frames (users leaving and joining); 0: one session each.
     #[arg(long, default_value_t = 0)]
@@ -101,13 +116,26 @@ fn main() -> anyhow::Result<()> {
     if args.rate.is_some_and(|r| !positive(r)) {
         bail!("--rate must be a number of frames per second > 0");
     }
+    if args.speed.is_some_and(|v| !positive(v)) {
+        bail!("--speed must be metres a second > 0");
+    }
+    if !(args.radius.is_finite() && args.radius >= 0.0) {
+        bail!("--radius must be metres ≥ 0");
+    }
+    if !(args.angle.is_finite() && (0.0..=180.0).contains(&args.angle)) {
+        bail!("--angle must be degrees in [0, 180]");
+    }
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?
         .block_on(run(args))
 }
 
-async fn run(args: Args) -> anyhow::Result<()> {
+async fn run(mut args: Args) -> anyhow::Result<()> {
+    if let Some(speed) = args.speed {
+        let rate = *args.rate.get_or_insert(30.0);
+        args.step = speed / rate;
+    }
     let target = args.target.trim_end_matches('/').to_string();
     let http = reqwest::Client::builder()
         // Room to keep every connection a user may have open (one per
@@ -162,6 +190,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
         walk: args.walk,
         step: args.step,
         churn: args.churn,
+        region: client::Region::new(args.radius, args.angle),
         bounds,
         end,
     };
@@ -212,6 +241,7 @@ async fn run(args: Args) -> anyhow::Result<()> {
         "target": target, "scene": args.scene, "users": args.users,
         "duration": args.duration, "method": args.method, "rate": args.rate,
         "max_in_flight": args.max_in_flight, "mode": args.mode, "group": args.group, "walk": args.walk, "step": args.step, "churn": args.churn,
+        "speed": args.speed, "radius": args.radius, "angle": args.angle,
     });
     let elapsed = start.elapsed();
     let mut report = recorder.report(elapsed, config);

@@ -27,6 +27,7 @@ pub struct Recorder {
     errors: Mutex<BTreeMap<String, u64>>,
     reconnects: AtomicU64,
     churned: AtomicU64,
+    kept: AtomicU64,
     lost: Mutex<BTreeMap<String, u64>>,
     users: Mutex<BTreeMap<u32, UserStats>>,
     /// When the run started, for samples.
@@ -121,6 +122,7 @@ impl Recorder {
             errors: Mutex::new(BTreeMap::new()),
             reconnects: AtomicU64::new(0),
             churned: AtomicU64::new(0),
+            kept: AtomicU64::new(0),
             lost: Mutex::new(BTreeMap::new()),
             users: Mutex::new(BTreeMap::new()),
             start: Instant::now(),
@@ -243,6 +245,11 @@ impl Recorder {
         self.churned.fetch_add(1, Ordering::Relaxed);
     }
 
+    /// One frame not sent: the user's last answer holds for its region.
+    pub fn kept(&self) {
+        self.kept.fetch_add(1, Ordering::Relaxed);
+    }
+
     /// Requests, errors, lost frames and reconnects so far, and the p99
     /// so far in milliseconds.
     pub fn progress(&self) -> (u64, u64, u64, u64, f64) {
@@ -283,6 +290,16 @@ impl Recorder {
             bytes_out: self.bytes_out.load(Ordering::Relaxed),
             reconnects: self.reconnects.load(Ordering::Relaxed),
             churned: self.churned.load(Ordering::Relaxed),
+            kept: self.kept.load(Ordering::Relaxed),
+            requests_saved: {
+                let kept = self.kept.load(Ordering::Relaxed);
+                let asked = requests + kept;
+                if asked > 0 {
+                    kept as f64 / asked as f64
+                } else {
+                    0.0
+                }
+            },
             users: self.users.lock().unwrap().values().cloned().collect(),
             phases: Vec::new(),
         }
@@ -358,6 +375,11 @@ impl UserRecorder {
         self.all.churned();
     }
 
+    /// One frame not sent: the user's last answer holds for its region.
+    pub fn kept(&self) {
+        self.all.kept();
+    }
+
     /// Notes the replica an answer names (`x-pvsd-replica`), if any.
     pub fn replica(&self, headers: &reqwest::header::HeaderMap) {
         let Some(name) = headers.get("x-pvsd-replica").and_then(|v| v.to_str().ok()) else {
@@ -410,6 +432,12 @@ pub struct Report {
     pub reconnects: u64,
     /// Sessions ended and replaced on purpose (`--churn`).
     pub churned: u64,
+    /// Frames not sent because the user's last answer held for its region
+    /// (`--radius`, `--angle`).
+    pub kept: u64,
+    /// The share of frames that were not sent (kept over kept + requests):
+    /// the requests the region saved against `--radius 0`.
+    pub requests_saved: f64,
     /// Each user's counts.
     pub users: Vec<UserStats>,
     /// The run split at `--marks`, when given.
@@ -438,6 +466,13 @@ impl Report {
             self.reconnects,
             self.churned
         );
+        if self.kept > 0 {
+            t += &format!(
+                "frames kept (the answer held for its region): {}  requests saved {:.1}%\n",
+                self.kept,
+                self.requests_saved * 100.0
+            );
+        }
         for (kind, n) in &self.errors_by_kind {
             t.push_str(&format!("errors {kind}: {n}\n"));
         }

@@ -30,8 +30,16 @@ pub struct Walk {
     heading: f64,
     step: f64,
     frame: u64,
+    /// Metres walked since the heading last turned.
+    since_turn: f64,
     rng: ChaCha8Rng,
 }
+
+/// The heading turns (a random amount) once per this many metres walked,
+/// whatever the frame rate: a walker at 1.4 m/s and 30 frames a second
+/// turns as often per metre as one at the default 0.5 m a frame (once a
+/// frame), not 30 times a second.
+const TURN_EVERY: f64 = 0.5;
 
 impl Walk {
     /// A path for user `seed`, moving `step` metres a frame.
@@ -50,6 +58,7 @@ impl Walk {
             heading: rng.random_range(0.0..std::f64::consts::TAU),
             step,
             frame: 0,
+            since_turn: 0.0,
             rng,
         }
     }
@@ -77,7 +86,11 @@ impl Walk {
             WalkKind::Street => 0.02,
             _ => 0.15,
         };
-        self.heading += self.rng.random_range(-turn..=turn);
+        self.since_turn += self.step;
+        while self.since_turn >= TURN_EVERY {
+            self.since_turn -= TURN_EVERY;
+            self.heading += self.rng.random_range(-turn..=turn);
+        }
         for axis in 0..2 {
             let (lo, hi) = (self.lo[axis * 2], self.hi[axis * 2]);
             let next = self.pos[axis]

@@ -522,3 +522,42 @@ fn sigterm_under_load_drains_and_exits_within_the_grace_period() {
         assert!(run.wait().unwrap().success(), "loadtest failed");
     }
 }
+
+/// `--radius 1 --speed 1.4` at 30 frames a second: users send a frame only
+/// when they leave the ball of their last answer, in every mode, with no
+/// error; against `--radius 0` that saves most requests (a new one about
+/// every 21st frame, and at each turn of the street walk).
+#[test]
+fn a_radius_saves_the_frames_a_walker_spends_inside_its_ball() {
+    let pvsd = pvsd_server();
+    let run = |radius: &str, mode: &str| {
+        loadtest(&[
+            "--target",
+            &pvsd.url,
+            "--scene",
+            "city",
+            "--users",
+            "4",
+            "--duration",
+            "3",
+            "--mode",
+            mode,
+            "--method",
+            "horizon",
+            "--speed",
+            "1.4",
+            "--radius",
+            radius,
+        ])
+    };
+    let point = run("0", "session");
+    assert_eq!(point["errors"], 0, "{point}");
+    assert_eq!(point["kept"], 0, "{point}");
+    for mode in ["stateless", "session", "ws", "walkthrough"] {
+        let region = run("1", mode);
+        assert_eq!(region["errors"], 0, "{mode}: {region}");
+        let saved = region["requests_saved"].as_f64().unwrap();
+        assert!(saved > 2.0 / 3.0, "{mode}: saved only {saved}: {region}");
+        assert_eq!(region["config"]["radius"], 1.0);
+    }
+}
