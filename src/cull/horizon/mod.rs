@@ -418,7 +418,7 @@ impl Sweep {
         let shrunk;
         let footprint = if self.shrink > 0.0 {
             shrunk = prism.shrunk_footprint(self.shrink)?;
-            &shrunk
+            shrunk.corners()
         } else {
             &prism.footprint
         };

@@ -67,30 +67,102 @@ pub struct Prism {
     pub footprint: Vec<DVec2>,
     /// Height of the prism's top.
     pub top: f64,
+    /// Per corner, where it moves per unit of shrinking while every edge
+    /// survives: `(n₁ + n₂) / (1 + n₁·n₂)` of its edges' inward unit
+    /// normals (the point at distance 1 from both edge lines).
+    bisectors: Vec<DVec2>,
+    /// Shrinking by less than this keeps every edge (running the way it
+    /// did), so the corners above give the erosion; 0 when unknown.
+    fast_limit: f64,
+}
+
+/// A shrunk footprint's corners: on the stack for the few-cornered
+/// footprints prisms have, so a sweep allocates nothing per mask.
+pub enum Footprint {
+    /// Up to [`SMALL`] corners.
+    Small([DVec2; SMALL], usize),
+    /// More.
+    Large(Vec<DVec2>),
+}
+
+/// Corners a [`Footprint::Small`] holds.
+pub const SMALL: usize = 8;
+
+impl Footprint {
+    /// The corners in order.
+    pub fn corners(&self) -> &[DVec2] {
+        match self {
+            Footprint::Small(c, n) => &c[..*n],
+            Footprint::Large(v) => v,
+        }
+    }
 }
 
 impl Prism {
+    /// A prism of a convex footprint (corners in order, either way round)
+    /// up to `top`.
+    pub fn new(footprint: Vec<DVec2>, top: f64) -> Prism {
+        let n = footprint.len();
+        let (mut bisectors, mut fast_limit) = (vec![DVec2::ZERO; n], 0.0);
+        if let Some(normals) = inward_normals(&footprint) {
+            let mut ok = true;
+            for i in 0..n {
+                let (a, b) = (normals[(i + n - 1) % n], normals[i]);
+                let d = 1.0 + a.dot(b);
+                // Edges turning back on themselves: no corner to move.
+                ok &= d > 1e-9;
+                bisectors[i] = (a + b) / d;
+            }
+            // Edge i from corner i to i + 1 keeps its direction while
+            // `|e|² + by (m₊ − m)·e > 0`.
+            fast_limit = if ok { f64::INFINITY } else { 0.0 };
+            for i in 0..n {
+                let e = footprint[(i + 1) % n] - footprint[i];
+                let shrink_rate = -(bisectors[(i + 1) % n] - bisectors[i]).dot(e);
+                if shrink_rate > 0.0 {
+                    fast_limit = f64::min(fast_limit, e.length_squared() / shrink_rate);
+                }
+            }
+            // Just below the exact limit, where an edge shrinks to nothing.
+            fast_limit *= 1.0 - 1e-6;
+        }
+        Prism {
+            footprint,
+            top,
+            bisectors,
+            fast_limit,
+        }
+    }
+
     /// The footprint with every edge moved inwards by `by` (its erosion by
     /// a disc of radius `by`), or `None` when nothing is left: a footprint
     /// point of the result has the whole disc of radius `by` around it in
     /// the footprint. Rounding is the caller's to cover (ask for more).
-    pub fn shrunk_footprint(&self, by: f64) -> Option<Vec<DVec2>> {
-        let n = self.footprint.len();
+    ///
+    /// While every edge survives (`by` well under the footprint's size,
+    /// the usual case), the erosion of a convex polygon is the polygon of
+    /// its consecutive offset lines' intersections: each corner moves
+    /// along its bisector, found once per prism. Otherwise the footprint
+    /// is clipped by each offset line.
+    pub fn shrunk_footprint(&self, by: f64) -> Option<Footprint> {
+        let f = &self.footprint;
+        let n = f.len();
         if n < 3 {
             return None;
         }
-        let centre = self.footprint.iter().copied().sum::<DVec2>() / n as f64;
-        let mut part = self.footprint.clone();
-        for i in 0..n {
-            let (a, b) = (self.footprint[i], self.footprint[(i + 1) % n]);
-            let Some(mut inward) = (b - a).perp().try_normalize() else {
-                continue;
-            };
-            if inward.dot(centre - a) < 0.0 {
-                inward = -inward;
+        if by < self.fast_limit && n <= SMALL {
+            let mut out = [DVec2::ZERO; SMALL];
+            for (o, (p, m)) in out.iter_mut().zip(f.iter().zip(&self.bisectors)) {
+                *o = *p + *m * by;
             }
-            // Keep where `inward · (p − a) ≥ by`.
-            let dist = |p: DVec2| inward.dot(p - a) - by;
+            return Some(Footprint::Small(out, n));
+        }
+        let normals = inward_normals(f)?;
+        let mut part = f.clone();
+        for (i, m) in normals.iter().enumerate() {
+            let a = f[i];
+            // Keep where `m · (p − a) ≥ by`.
+            let dist = |p: DVec2| m.dot(p - a) - by;
             let mut next = Vec::with_capacity(part.len() + 1);
             for k in 0..part.len() {
                 let (p, q) = (part[k], part[(k + 1) % part.len()]);
@@ -107,8 +179,25 @@ impl Prism {
             }
             part = next;
         }
-        Some(part)
+        Some(Footprint::Large(part))
     }
+}
+
+/// The inward unit normal of each edge (corner i to i + 1) of a convex
+/// footprint; `None` when an edge has no length.
+fn inward_normals(f: &[DVec2]) -> Option<Vec<DVec2>> {
+    let n = f.len();
+    if n < 3 {
+        return None;
+    }
+    let centre = f.iter().copied().sum::<DVec2>() / n as f64;
+    (0..n)
+        .map(|i| {
+            let (a, b) = (f[i], f[(i + 1) % n]);
+            let m = (b - a).perp().try_normalize()?;
+            Some(if m.dot(centre - a) < 0.0 { -m } else { m })
+        })
+        .collect()
 }
 
 /// What a bake of the prisms depends on beyond the scene file: change it
@@ -175,7 +264,7 @@ fn decode(bytes: &[u8]) -> Result<Result<Prisms, String>, String> {
             footprint.push(DVec2::new(x, z));
         }
         let top = f64_of(take(8)?);
-        prisms.push(Prism { footprint, top });
+        prisms.push(Prism::new(footprint, top));
     }
     let objects = u32_of(take(4)?);
     let mut ranges = Vec::with_capacity(objects.min(1 << 24) as usize);
@@ -610,9 +699,11 @@ fn object_prisms(scene: &Scene, object: &Object, ground: f64) -> Vec<Prism> {
             let (u0, u1) = (us[r[0]] + margin, us[r[2] + 1] - margin);
             let (w0, w1) = (ws[r[1]] + margin, ws[r[3] + 1] - margin);
             let top = level - margin;
-            (u0 < u1 && w0 < w1 && top > ground).then(|| Prism {
-                footprint: vec![xz(u0, w0), xz(u1, w0), xz(u1, w1), xz(u0, w1)],
-                top,
+            (u0 < u1 && w0 < w1 && top > ground).then(|| {
+                Prism::new(
+                    vec![xz(u0, w0), xz(u1, w0), xz(u1, w1), xz(u0, w1)],
+                    top,
+                )
             })
         })
         .collect()
@@ -698,6 +789,45 @@ mod tests {
                 )
             })
             .collect()
+    }
+
+    #[test]
+    fn a_shrunk_footprint_is_the_erosion_both_ways() {
+        let square = Prism::new(
+            vec![
+                DVec2::new(0.0, 0.0),
+                DVec2::new(4.0, 0.0),
+                DVec2::new(4.0, 2.0),
+                DVec2::new(0.0, 2.0),
+            ],
+            10.0,
+        );
+        let s = square.shrunk_footprint(0.5).unwrap();
+        assert!(matches!(s, Footprint::Small(..)));
+        let want = [
+            DVec2::new(0.5, 0.5),
+            DVec2::new(3.5, 0.5),
+            DVec2::new(3.5, 1.5),
+            DVec2::new(0.5, 1.5),
+        ];
+        for (g, w) in s.corners().iter().zip(want) {
+            assert!(g.distance(w) < 1e-12, "{g} {w}");
+        }
+        // Edges that vanish take the general clip: nothing is left.
+        assert!(square.shrunk_footprint(1.5).is_none());
+        // A triangle, reversed: the same erosion.
+        let tri = Prism::new(
+            vec![DVec2::new(0.0, 0.0), DVec2::new(0.0, 6.0), DVec2::new(6.0, 0.0)],
+            1.0,
+        );
+        // Beyond the fast limit the clip answers, the same erosion.
+        let big = tri.shrunk_footprint(1.2).unwrap();
+        assert!(matches!(big, Footprint::Large(_)) || tri.fast_limit > 1.2);
+        let t = tri.shrunk_footprint(0.5).unwrap();
+        for c in t.corners() {
+            assert!(c.x >= 0.5 - 1e-12 && c.y >= 0.5 - 1e-12, "{c}");
+            assert!((c.x + c.y - 6.0) / 2f64.sqrt() <= -0.5 + 1e-12, "{c}");
+        }
     }
 
     #[test]
