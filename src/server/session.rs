@@ -177,10 +177,15 @@ impl Session {
     ) -> Result<Answered, ApiError> {
         let mut frames = self.frames.lock().await;
         // The user moves before looking, so others see where it is now.
-        let others = self
-            .user
-            .as_ref()
-            .map(|u| u.moved(&pose, radius, &self.scene.scene().origin));
+        let others = self.user.as_ref().map(|u| {
+            let scene = self.scene.scene();
+            u.moved(
+                &pose,
+                radius,
+                &scene.origin,
+                f64::from(scene.bounds().min.y),
+            )
+        });
         let f = &mut *frames;
         let cache = match f.cache.take() {
             Some(cache) => cache,

@@ -31,14 +31,19 @@ pub const AVATAR_ABOVE_EYE: f64 = 0.1;
 /// The avatar of a user whose eye is at `eye` (world), in the scene's local
 /// coordinates (relative to `origin`), rounded outwards to `f32`.
 pub fn avatar(eye: DVec3, origin: DVec3) -> Aabb {
-    avatar_within(eye, 0.0, origin)
+    avatar_within(eye, 0.0, origin, f64::NEG_INFINITY)
 }
 
 /// The box holding the avatar of a user whose eye is anywhere within
-/// `radius` of `eye` ([`avatar`] grown by `radius` on every side).
-pub fn avatar_within(eye: DVec3, radius: f64, origin: DVec3) -> Aabb {
+/// `radius` of `eye` ([`avatar`] grown by `radius` on every side), but
+/// never grown below `floor` (local; the scene's lowest point): no body
+/// stands below everything there is to stand on, and a box reaching below
+/// the ground could never be proven hidden by the horizon.
+pub fn avatar_within(eye: DVec3, radius: f64, origin: DVec3, floor: f64) -> Aabb {
     let e = eye - origin;
-    let lo = e - DVec3::new(AVATAR_HALF_WIDTH, AVATAR_BELOW_EYE, AVATAR_HALF_WIDTH) - radius;
+    let feet = e.y - AVATAR_BELOW_EYE;
+    let mut lo = e - DVec3::new(AVATAR_HALF_WIDTH, AVATAR_BELOW_EYE, AVATAR_HALF_WIDTH) - radius;
+    lo.y = (feet - radius).max(floor.min(feet));
     let hi = e + DVec3::new(AVATAR_HALF_WIDTH, AVATAR_ABOVE_EYE, AVATAR_HALF_WIDTH) + radius;
     Aabb::enclosing(lo, hi)
 }
@@ -145,9 +150,16 @@ impl User {
     ///
     /// The user may stand anywhere within `radius` of the camera's eye (a
     /// client that keeps a region answer while it moves): each avatar is
-    /// grown by its own user's radius, so a view that sees any place its
-    /// user may be reports it.
-    pub fn moved(&self, camera: &Camera, radius: f64, origin: &DVec3) -> Vec<(String, Aabb)> {
+    /// grown by its own user's radius, down to `floor` at most
+    /// ([`avatar_within`]), so a view that sees any place its user may be
+    /// reports it.
+    pub fn moved(
+        &self,
+        camera: &Camera,
+        radius: f64,
+        origin: &DVec3,
+        floor: f64,
+    ) -> Vec<(String, Aabb)> {
         let mut users = self.walkthrough.lock();
         if let Some(me) = users.get_mut(&self.id) {
             me.pose = Some(*camera);
@@ -159,7 +171,7 @@ impl User {
             .filter(|(id, _)| **id != self.id)
             .filter_map(|(id, p)| {
                 p.pose
-                    .map(|c| (id.clone(), avatar_within(c.eye, p.radius, *origin)))
+                    .map(|c| (id.clone(), avatar_within(c.eye, p.radius, *origin, floor)))
             })
             .collect()
     }
