@@ -51,6 +51,10 @@ impl std::fmt::Display for DecodeError {
 impl std::error::Error for DecodeError {}
 
 /// A decoded message.
+// A frame is much larger than a visible message's `Vec`; a message is
+// made once per decode and taken apart at once, so boxing it would only
+// add an allocation per frame.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {
     /// The ids of a stateless answer.

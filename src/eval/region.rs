@@ -107,7 +107,7 @@ pub fn request_share(cameras: &[Camera], region: Region, speed: f64) -> f64 {
         .windows(2)
         .map(|w| w[0].eye.distance(w[1].eye))
         .sum();
-    if !(step > 0.0) || length <= 0.0 {
+    if !step.is_finite() || step <= 0.0 || length <= 0.0 {
         return 1.0;
     }
     let frames = ((length / step).ceil() as usize + 1).min(1_000_000);
