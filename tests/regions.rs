@@ -122,6 +122,10 @@ fn a_city_street_with_a_cone_near_90_degrees_and_a_ball_below_the_ground() {
     // answers with frustum culling).
     assert_no_misses(&scene, &cameras, Region::new(5.0, 0.0).unwrap());
     assert_no_misses(&scene, &cameras, Region::new(0.3, 85.0).unwrap());
+    // Views turned past the side: the enclosure is a cube around the eye,
+    // whose window the horizon must take whole.
+    assert_no_misses(&scene, &cameras, Region::new(0.0, 120.0).unwrap());
+    assert_no_misses(&scene, &cameras, Region::new(0.0, 50.0).unwrap());
 }
 
 #[test]
@@ -272,7 +276,7 @@ async fn radius_angle_and_views_are_validated_by_name() {
         ),
         (
             json!([{"eye": [0, 1.7, 0], "forward": [1, 0, 0], "radius": -2}]),
-            "views[0].radius",
+            "views[0]: radius",
         ),
         (
             json!([{"eye": [0, 1.7, 0], "forward": [1, 0, 0], "method": "frustum"}]),
@@ -280,7 +284,7 @@ async fn radius_angle_and_views_are_validated_by_name() {
         ),
         (
             json!([{"forward": [1, 0, 0]}]),
-            "views[0].missing field `eye`",
+            "views[0]: missing field `eye`",
         ),
     ] {
         let body = json!({"views": views}).to_string();
@@ -552,4 +556,62 @@ async fn walkthrough_users_are_reported_within_their_radius() {
     // can prove hidden what one from a lower eye cannot.
     assert!(late1 < late0, "{late1} late at radius 1, {late0} at 0");
     assert!(count(region) >= count(point));
+}
+
+/// The horizon with views turned far to the side (a cone of 120°: the
+/// enclosure is a cube around the eye): a building beside the view's axis
+/// hides, within ±45°, the part of a long low box behind it, but a view
+/// turned 63° sees the box's far end past the building's edge. Its window
+/// must be the enclosure's whole width, not the camera's.
+#[test]
+fn a_horizon_turned_far_sideways_keeps_what_lies_past_a_building() {
+    use glam::Vec3;
+    use pvsd::scene::SceneBuilder;
+    use pvsd::scene::generate::MeshBuilder;
+    let mut b = SceneBuilder::new("sideways");
+    let mut add = |name: &str, f: &dyn Fn(&mut MeshBuilder)| {
+        let mut m = MeshBuilder::new();
+        f(&mut m);
+        b.begin_object(name, None);
+        b.add_triangles(
+            m.build(false).triangles().map(|t| t.map(|v| v.as_dvec3())),
+            false,
+        );
+    };
+    add("ground", &|m| {
+        m.quad(
+            Vec3::new(-100.0, 0.0, -100.0),
+            Vec3::new(-100.0, 0.0, 100.0),
+            Vec3::new(100.0, 0.0, 100.0),
+            Vec3::new(100.0, 0.0, -100.0),
+        )
+    });
+    add("building", &|m| {
+        m.cuboid(Vec3::new(0.0, 0.0, 5.0), Vec3::new(9.0, 20.0, 8.0), false)
+    });
+    add("long_box", &|m| {
+        m.cuboid(Vec3::new(5.0, 0.0, 10.0), Vec3::new(30.0, 3.0, 11.0), false)
+    });
+    let scene = Arc::new(b.finish());
+    let methods = prepare(scene.clone());
+    assert!(
+        methods.names().contains(&"horizon"),
+        "{:?}",
+        methods.unsupported()
+    );
+    let camera = Camera {
+        eye: DVec3::new(0.0, 1.7, 0.0),
+        forward: DVec3::Z,
+        viewport: common::CHECK_VIEWPORT,
+        ..Camera::default()
+    };
+    for angle in [120.0, 70.0] {
+        let view = View::with_region(camera, Region::new(0.0, angle).unwrap(), &scene).unwrap();
+        let mut out = pvsd::cull::VisibleSet::new();
+        methods
+            .cull_once(&"horizon".parse().unwrap(), &view, &mut out)
+            .unwrap();
+        assert!(out.contains(2), "angle {angle}: {:?}", out.ids());
+    }
+    assert_no_misses(&scene, &[camera], Region::new(0.0, 120.0).unwrap());
 }

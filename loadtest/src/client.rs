@@ -215,7 +215,9 @@ impl Region {
     }
 
     /// Whether an answer asked for at `asked` still holds at `pose`: the
-    /// eye within the radius, the direction within the angle.
+    /// eye within the radius, the camera frame (up +Y, as the server
+    /// takes it) turned by at most the angle — the rotation between the
+    /// two frames, roll included, as the server's region is defined.
     fn holds(&self, asked: Option<Pose>, pose: Pose) -> bool {
         if self.radius == 0.0 && self.angle == 0.0 {
             return false;
@@ -223,18 +225,43 @@ impl Region {
         let Some((eye, forward)) = asked else {
             return false;
         };
-        let (e, f) = (pose.0, pose.1);
+        let e = pose.0;
         let dist =
             ((e[0] - eye[0]).powi(2) + (e[1] - eye[1]).powi(2) + (e[2] - eye[2]).powi(2)).sqrt();
-        let dot = f[0] * forward[0] + f[1] * forward[1] + f[2] * forward[2];
-        let norms = (f.iter().map(|x| x * x).sum::<f64>()
-            * forward.iter().map(|x| x * x).sum::<f64>())
-        .sqrt();
-        let cos = if norms > 0.0 { dot / norms } else { -1.0 };
+        let (Some(a), Some(b)) = (frame(forward), frame(pose.1)) else {
+            return false;
+        };
+        let dot = |u: [f64; 3], v: [f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+        let trace = dot(a[0], b[0]) + dot(a[1], b[1]) + dot(a[2], b[2]);
+        let turn = ((trace - 1.0) * 0.5).clamp(-1.0, 1.0).acos().to_degrees();
         // Slightly inside both, so that rounding never keeps an answer a
         // step too long.
-        dist <= self.radius * (1.0 - 1e-9) && cos >= (self.angle * (1.0 - 1e-9)).to_radians().cos()
+        dist <= self.radius * (1.0 - 1e-9) && turn <= self.angle * (1.0 - 1e-9)
     }
+}
+
+/// The camera frame (right, up, forward) of a forward direction with +Y
+/// up; `None` for a zero or vertical forward.
+fn frame(f: [f64; 3]) -> Option<[[f64; 3]; 3]> {
+    let n = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+    if !n.is_finite() || n <= 0.0 {
+        return None;
+    }
+    let f = [f[0] / n, f[1] / n, f[2] / n];
+    // right = f × +Y
+    let r = [-f[2], 0.0, f[0]];
+    let rn = (r[0] * r[0] + r[2] * r[2]).sqrt();
+    if rn < 1e-9 {
+        return None;
+    }
+    let r = [r[0] / rn, 0.0, r[2] / rn];
+    // up = right × f
+    let u = [
+        r[1] * f[2] - r[2] * f[1],
+        r[2] * f[0] - r[0] * f[2],
+        r[0] * f[1] - r[1] * f[0],
+    ];
+    Some([r, u, f])
 }
 
 /// A view body: the pose, then `extra` (`,"key":value…`, or empty).
@@ -505,8 +532,9 @@ async fn http_user(
             plan.region.fields()
         ),
     };
-    // The pose of the last frame sent, whose answer holds within the region.
-    let mut asked: Option<Pose> = None;
+    // The pose of the last frame sent, whose answer holds within the
+    // region; forgotten when that frame fails, so the next one asks again.
+    let asked: Arc<Mutex<Option<Pose>>> = Arc::new(Mutex::new(None));
     let held = Arc::new(Mutex::new(Held::default()));
     // Open loop: at most `max_in_flight` requests (connections) per user;
     // later frames wait their turn, as a browser queues past its
@@ -534,11 +562,12 @@ async fn http_user(
             link.churn(plan, http, &held, rec).await;
         }
         let pose = walk.next_pose();
-        if plan.region.holds(asked, pose) {
+        if plan.region.holds(*asked.lock().unwrap(), pose) {
             rec.kept();
             continue;
         }
-        asked = Some(pose);
+        *asked.lock().unwrap() = Some(pose);
+        let asked = asked.clone();
         let (http, stateless, method) = (http.clone(), stateless.clone(), method.clone());
         let (held, rec, slots) = (held.clone(), rec.clone(), slots.clone());
         let (session, shared_plan) = (session.clone(), plan.clone());
@@ -582,6 +611,12 @@ async fn http_user(
                 }
                 check(&b, session.is_some(), &held).map(|users| (b.len(), users, true))
             });
+            if checked.is_err() {
+                let mut a = asked.lock().unwrap();
+                if *a == Some(pose) {
+                    *a = None;
+                }
+            }
             match checked {
                 Ok((n, users, current)) => rec.ok(due.elapsed(), sent, n, users, current),
                 Err(kind) => match &session {

@@ -201,6 +201,14 @@ pub struct JoinRequest {
     #[serde(default)]
     #[schema(value_type = BTreeMap<String, OptionValue>)]
     pub options: serde_json::Map<String, serde_json::Value>,
+    /// The walkthrough's `radius` for frames that give none (default 0).
+    #[serde(default)]
+    #[schema(value_type = Option<f64>, default = 0, minimum = 0)]
+    pub radius: Option<Number>,
+    /// The walkthrough's `angle` for frames that give none (default 0).
+    #[serde(default)]
+    #[schema(value_type = Option<f64>, default = 0, minimum = 0, maximum = 180)]
+    pub angle: Option<Number>,
 }
 
 /// A box in world coordinates.

@@ -370,10 +370,11 @@ impl<M: CullMethod> Culler for M {
 
     fn cull(&self, job: &mut CullJob) -> Result<CullStats, CullError> {
         let start = Instant::now();
-        let also = std::mem::take(&mut job.also);
+        // A copy (free for one view): the job keeps its views even if the
+        // method panics, so a frustum fallback answers all of them.
+        let also = job.also.clone();
         let item = self.begin(job);
         let result = cull_views(self, item, &also);
-        job.also = also;
         Ok(self.finish(job, result?, start))
     }
 

@@ -114,11 +114,9 @@ pub fn request_share(cameras: &[Camera], region: Region, speed: f64) -> f64 {
     let walked = resample(cameras, step, frames);
     let mut asked: Option<Camera> = None;
     let mut requests = 0usize;
-    let cos_angle = region.angle_deg().to_radians().cos();
     for c in &walked {
         let keeps = asked.is_some_and(|a| {
-            a.eye.distance(c.eye) <= region.radius()
-                && a.forward.normalize().dot(c.forward.normalize()) >= cos_angle
+            a.eye.distance(c.eye) <= region.radius() && turn_deg(&a, c) <= region.angle_deg()
         }) && !region.is_point();
         if !keeps {
             asked = Some(*c);
@@ -126,6 +124,17 @@ pub fn request_share(cameras: &[Camera], region: Region, speed: f64) -> f64 {
         }
     }
     requests as f64 / walked.len() as f64
+}
+
+/// The angle of the rotation from `a`'s camera frame to `b`'s, degrees
+/// (roll included: how the region's `angle` is defined); 180 when either
+/// has no frame.
+fn turn_deg(a: &Camera, b: &Camera) -> f64 {
+    let (Some(a), Some(b)) = (a.basis(), b.basis()) else {
+        return 180.0;
+    };
+    let trace = a.right.dot(b.right) + a.up.dot(b.up) + a.forward.dot(b.forward);
+    ((trace - 1.0) * 0.5).clamp(-1.0, 1.0).acos().to_degrees()
 }
 
 #[cfg(test)]

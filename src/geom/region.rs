@@ -152,15 +152,18 @@ impl Region {
         })?;
         let r = self.radius;
         let (tx, ty) = camera.half_tangents();
+        // How far from its eye any view draws: its far corners' distance.
+        let corner_reach = camera.far * (1.0 + tx * tx + ty * ty).sqrt();
+        // How far along the axis: `far` itself when no view turns.
         let reach = if self.angle_deg == 0.0 {
             camera.far
         } else {
-            camera.far * (1.0 + tx * tx + ty * ty).sqrt()
+            corner_reach
         };
         // Rounding of the eye's own coordinates, which every plane inherits.
         let ulps = camera.eye.abs().max_element() * 8.0 * f64::EPSILON;
         let Some((wx, wy)) = self.widened(tx, ty) else {
-            let half = (r + reach) * (1.0 + SLACK) + ulps;
+            let half = (r + corner_reach) * (1.0 + SLACK) + ulps;
             return Frustum::around(camera.eye - origin, &basis, half).ok_or_else(|| CameraError {
                 field: "radius".into(),
                 problem: "puts the region out of the range of f64".into(),
@@ -298,6 +301,8 @@ mod tests {
             (1.0, 120.0, 10.0, 1.0),
             (1e-3, 0.0, 0.01, 1.0),
             (3.0, 10.0, 179.0, 100.0),
+            (3.0, 0.0, 179.0, 100.0),
+            (0.5, 0.0, 90.0, 600.0),
         ] {
             let region = Region::new(radius, angle).unwrap();
             let cam = Camera {

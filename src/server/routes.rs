@@ -437,10 +437,14 @@ pub async fn join_walkthrough(
         (Err(_), Some(scene)) => {
             let methods = state.scene(scene)?;
             let spec = method_spec(req.method.as_deref(), &req.options)?;
-            let method = prepare_client(&methods, &spec, false).await?.0.name();
+            let region = wire::region(req.radius, req.angle, Region::POINT)?;
+            let method = prepare_client(&methods, &spec, !region.is_point())
+                .await?
+                .0
+                .name();
             state
                 .walkthroughs()
-                .get_or_recreate(&wid, methods, spec, method)?
+                .get_or_recreate(&wid, methods, spec, method, region)?
         }
     };
     let (method, cache) = prepare_client(&w.scene, &w.spec, !w.region.is_point()).await?;

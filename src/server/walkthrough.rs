@@ -233,20 +233,19 @@ impl Walkthroughs {
         scene: Arc<SceneMethods>,
         spec: MethodSpec,
         method: &'static str,
+        region: Region,
     ) -> Result<(Arc<Walkthrough>, bool), ApiError> {
         let route =
             RouteKey::of_id(id).ok_or_else(|| ApiError::UnknownWalkthrough(id.to_string()))?;
         let entry = self.live.entry(id.to_string()).or_insert_with(|| {
             tracing::info!(walkthrough = %id, "a lost walkthrough made again as its users rejoin");
-            // Its users' frames say their own radius (a walkthrough made
-            // again knows only what the join request carries).
             Arc::new(Walkthrough::new(
                 id.to_string(),
                 route,
                 scene,
                 spec,
                 method,
-                Region::POINT,
+                region,
             ))
         });
         Ok((entry.value().clone(), entry.is_fresh()))

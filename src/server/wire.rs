@@ -93,9 +93,7 @@ pub fn region(
 
 impl ViewRequestExt for ViewRequest {
     fn camera(&self) -> Result<Camera, ApiError> {
-        let missing = |field: &str| {
-            ApiError::MalformedJson(format!("missing field `{field}` (or give views)"))
-        };
+        let missing = |field: &str| ApiError::MalformedJson(format!("missing field `{field}`"));
         let d = Camera::default();
         let viewport = self.viewport.unwrap_or(d.viewport);
         let aspect = match (self.aspect, self.viewport) {
@@ -164,12 +162,13 @@ impl ViewRequestExt for ViewRequest {
                 )));
             }
             let named = |e: ApiError| match e {
-                ApiError::InvalidView(m) => ApiError::InvalidView(format!("views[{i}].{m}")),
-                ApiError::MalformedJson(m) => ApiError::MalformedJson(format!("views[{i}].{m}")),
+                ApiError::InvalidView(m) => ApiError::InvalidView(format!("views[{i}]: {m}")),
+                ApiError::MalformedJson(m) => ApiError::MalformedJson(format!("views[{i}]: {m}")),
                 other => other,
             };
             let r = region(v.radius, v.angle, outer).map_err(named)?;
             let camera = v.camera().map_err(named)?;
+            // A camera's own errors name its field: `views[1].eye[0] is NaN`.
             let view = View::with_region(camera, r, scene)
                 .map_err(|e| ApiError::InvalidView(format!("views[{i}].{e}")))?;
             out.radius = out.radius.max(r.radius());

@@ -314,7 +314,15 @@ impl Sweep {
         let centre = view.eye();
         let eye = centre + DVec3::Y * radius;
         let (mut x0, mut x1, mut clamped) = (f64::INFINITY, f64::NEG_INFINITY, true);
-        for c in &view.frustum().corners()[4..] {
+        // A point view's near corners lie on its far corners' rays; a
+        // region's frustum is not a pyramid from the sweep's eye (its apex
+        // is behind, or it is a cube), so all eight bound its window.
+        let corners = if view.region().is_point() {
+            &view.frustum().corners()[4..]
+        } else {
+            &view.frustum().corners()[..]
+        };
+        for c in corners {
             let rel = *c - eye;
             let t = rel.dot(d);
             if t <= DEPTH_EPSILON * rel.abs().max_element() {
