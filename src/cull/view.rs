@@ -17,6 +17,7 @@ pub struct View {
     frustum: Frustum,
     eye: DVec3,
     region: Region,
+    apex: Option<DVec3>,
 }
 
 impl View {
@@ -31,7 +32,7 @@ impl View {
     /// ([`Region::enclosing_frustum`]), and the eye, camera and frame stay
     /// the region's centre.
     pub fn with_region(camera: Camera, region: Region, scene: &Scene) -> Result<View, CameraError> {
-        let frustum = region.enclosing_frustum(&camera, scene.origin)?;
+        let (frustum, apex) = region.enclosing(&camera, scene.origin)?;
         // `enclosing_frustum` validated the camera, so it has a frame; the
         // check stays so that a change there cannot turn into a panic here.
         let basis = camera.basis().ok_or_else(|| CameraError {
@@ -44,6 +45,7 @@ impl View {
             frustum,
             eye: camera.eye - scene.origin,
             region,
+            apex,
         })
     }
 
@@ -71,6 +73,13 @@ impl View {
     /// The eyes and directions the answer must hold for.
     pub fn region(&self) -> Region {
         self.region
+    }
+
+    /// The point the frustum's side planes pass through, relative to the
+    /// scene origin: the eye for a point view, behind it for a region;
+    /// `None` when a region's frustum is a cube around the eye.
+    pub fn apex(&self) -> Option<DVec3> {
+        self.apex
     }
 }
 

@@ -142,8 +142,22 @@ impl Region {
         camera: &Camera,
         origin: DVec3,
     ) -> Result<Frustum, CameraError> {
+        Ok(self.enclosing(camera, origin)?.0)
+    }
+
+    /// [`Region::enclosing_frustum`] and its apex relative to `origin`: the
+    /// point all its side planes pass through (the camera's eye moved back;
+    /// the eye itself for a point region), `None` for the cube.
+    pub fn enclosing(
+        &self,
+        camera: &Camera,
+        origin: DVec3,
+    ) -> Result<(Frustum, Option<DVec3>), CameraError> {
         if self.is_point() {
-            return Frustum::from_camera(camera, origin);
+            return Ok((
+                Frustum::from_camera(camera, origin)?,
+                Some(camera.eye - origin),
+            ));
         }
         camera.validate()?;
         let basis = camera.basis().ok_or_else(|| CameraError {
@@ -164,10 +178,12 @@ impl Region {
         let ulps = camera.eye.abs().max_element() * 8.0 * f64::EPSILON;
         let Some((wx, wy)) = self.widened(tx, ty) else {
             let half = (r + corner_reach) * (1.0 + SLACK) + ulps;
-            return Frustum::around(camera.eye - origin, &basis, half).ok_or_else(|| CameraError {
-                field: "radius".into(),
-                problem: "puts the region out of the range of f64".into(),
-            });
+            let cube =
+                Frustum::around(camera.eye - origin, &basis, half).ok_or_else(|| CameraError {
+                    field: "radius".into(),
+                    problem: "puts the region out of the range of f64".into(),
+                })?;
+            return Ok((cube, None));
         };
         let (tx2, ty2) = (wx.tan(), wy.tan());
         let back = (r / wx.min(wy).sin()) * (1.0 + SLACK) + ulps;
@@ -184,10 +200,11 @@ impl Region {
             far,
             viewport: camera.viewport,
         };
-        Frustum::from_camera(&enclosing, origin).map_err(|e| CameraError {
+        let frustum = Frustum::from_camera(&enclosing, origin).map_err(|e| CameraError {
             field: "radius".into(),
             problem: format!("makes a region whose frustum is unusable ({e})"),
-        })
+        })?;
+        Ok((frustum, Some(enclosing.eye - origin)))
     }
 
     /// The half-angles (radians) of the pyramid that holds every rotated

@@ -52,7 +52,9 @@
 //! the cylinder reaches are not used). The cylinder holds the ball when the
 //! ball is not below `G`; when it is, the view gets frustum culling only.
 //! The top is not lowered (the highest eye already sees the most over it);
-//! the `angle` is the view's enclosing frustum alone.
+//! the `angle` is the view's enclosing frustum alone. The enclosing
+//! frustum is a pyramid from an apex behind the sweep's eye, so its window
+//! widens near that eye (`Sweep::new`).
 //!
 //! Levels of detail (§3.6): with `areas=true` each visible object carries an
 //! upper bound of the pixels it can cover: the pixel centres inside the
@@ -285,8 +287,16 @@ struct Sweep {
     d: DVec3,
     /// Horizontal unit right: screen x.
     r: DVec3,
-    /// Whether the window holds the frustum's whole x range.
+    /// Whether the window holds the frustum's whole x range (for boxes
+    /// from depth `clamp_from` on).
     clamped: bool,
+    /// Boxes nearer than this are compared whole: a frame leaving the
+    /// window is visible (0 for a point view).
+    clamp_from: f64,
+    /// A region's apex lies this far behind the sweep's eye along `d`.
+    behind: f64,
+    /// The window seen from a region's apex.
+    apex_window: (f64, f64),
     x0: f64,
     x1: f64,
     /// Whether masks may be used at all (the eye is not below the ground).
@@ -313,17 +323,23 @@ impl Sweep {
         let radius = view.region().radius();
         let centre = view.eye();
         let eye = centre + DVec3::Y * radius;
+        // The window: the x range of the frustum's far corners seen from
+        // its apex. For a point view the apex is the eye, and every frame
+        // is compared only over its part inside the window (the rest is
+        // outside the frustum). A region's apex `a` lies behind the sweep's
+        // eye `e` by `δ = e − a` (back along the forward, and up by the
+        // radius; `δ · r` = 0): a frustum point at depth `t` from `e` has
+        // `x_e = x_a (t + δ·d) / t`, so a box from depth `t` on is
+        // compared over the apex window scaled by `1 + δ·d / t`
+        // ([`Sweep::frame`]). The horizon's columns span that for depths
+        // from `2 δ·d` on; a nearer box is compared whole (one leaving the
+        // window is visible). A cube has no apex: the wide window, frames
+        // whole.
         let (mut x0, mut x1, mut clamped) = (f64::INFINITY, f64::NEG_INFINITY, true);
-        // A point view's near corners lie on its far corners' rays; a
-        // region's frustum is not a pyramid from the sweep's eye (its apex
-        // is behind, or it is a cube), so all eight bound its window.
-        let corners = if view.region().is_point() {
-            &view.frustum().corners()[4..]
-        } else {
-            &view.frustum().corners()[..]
-        };
-        for c in corners {
-            let rel = *c - eye;
+        let apex = view.apex();
+        let from = apex.unwrap_or(eye);
+        for c in &view.frustum().corners()[4..] {
+            let rel = *c - from;
             let t = rel.dot(d);
             if t <= DEPTH_EPSILON * rel.abs().max_element() {
                 clamped = false;
@@ -332,6 +348,21 @@ impl Sweep {
             let x = rel.dot(r) / t;
             x0 = x0.min(x);
             x1 = x1.max(x);
+        }
+        let (mut clamp_from, mut behind, apex_window) = (0.0, 0.0, (x0, x1));
+        if let (Some(a), true) = (apex, radius > 0.0 && clamped) {
+            let delta = eye - a;
+            let (dd, dr) = (delta.dot(d), delta.dot(r));
+            if dd >= 0.0 && dr.abs() <= DEPTH_EPSILON * delta.length() {
+                (clamp_from, behind) = (2.0 * dd, dd);
+                let s = 1.5 * (1.0 + 1e-9);
+                (x0, x1) = (x0.min(x0 * s) - 2e-9, x1.max(x1 * s) + 2e-9);
+            } else {
+                clamped = false;
+            }
+        }
+        if apex.is_none() {
+            clamped = false;
         }
         if !clamped {
             (x0, x1) = (-WIDE_WINDOW, WIDE_WINDOW);
@@ -348,6 +379,9 @@ impl Sweep {
             d,
             r,
             clamped,
+            clamp_from,
+            behind,
+            apex_window,
             x0,
             x1,
             occludes,
@@ -405,13 +439,26 @@ impl Sweep {
             (x_lo, x_hi) = (x_lo.min(x), x_hi.max(x));
             (t_near, t_far) = (t_near.min(t), t_far.max(t));
         }
+        if self.clamp_from > 0.0 && t_near >= self.clamp_from {
+            // A region's box: only its part inside the frustum matters,
+            // which from this depth on lies within the apex window widened
+            // by `1 + δ·d / t_near` (`Sweep::new`).
+            let s = (1.0 + self.behind / t_near) * (1.0 + 1e-9);
+            let (a0, a1) = self.apex_window;
+            // Rounded outwards, relatively and by what `δ · r` (zero to
+            // within rounding) can shift `x`.
+            let (lo, hi) = (a0.min(a0 * s) - 1e-9, a1.max(a1 * s) + 1e-9);
+            if x_lo.max(lo) <= x_hi.min(hi) {
+                (x_lo, x_hi) = (x_lo.max(lo), x_hi.min(hi));
+            }
+        }
         let f = Frame {
             x_lo,
             x_hi,
             y_lo: lo.y / if lo.y >= 0.0 { t_far } else { t_near },
             y_hi: hi.y / if hi.y >= 0.0 { t_near } else { t_far },
         };
-        if !self.clamped && (f.x_lo < self.x0 || f.x_hi > self.x1) {
+        if (!self.clamped || t_near < self.clamp_from) && (f.x_lo < self.x0 || f.x_hi > self.x1) {
             return None;
         }
         Some(f)
@@ -787,6 +834,9 @@ mod tests {
                 x1: 1.0,
                 occludes: true,
                 shrink: 0.0,
+                clamp_from: 0.0,
+                behind: 0.0,
+                apex_window: (-1.0, 1.0),
             };
             let c = Vec3::new(next() as f32, next() as f32, next() as f32) * 400.0;
             let h = Vec3::new(next() as f32, next() as f32, next() as f32).abs() * 60.0;
