@@ -1,12 +1,13 @@
-//! A view body through the parsing and validation the routes use.
+//! A view body through the parsing and validation the routes use (its
+//! one view or its `views`, each with its region).
 //! Invariant: a view that validates builds a frustum of finite unit planes
-//! around a finite eye.
+//! around a finite eye, whatever its `radius` and `angle`.
 #![no_main]
 
 use std::sync::{Arc, OnceLock};
 
 use libfuzzer_sys::fuzz_target;
-use pvsd::cull::View;
+use pvsd::geom::Region;
 use pvsd::scene::Scene;
 use pvsd::server::JsonLimits;
 use pvsd::server::wire::ViewRequestExt;
@@ -20,9 +21,15 @@ fuzz_target!(|data: &[u8]| {
     };
     let _ = req.method_spec();
     let (_, _) = (req.check_stateless(), req.check_frame());
-    let Ok(view) = View::new(req.camera(), scene) else {
+    let Ok(views) = req.views(scene, Region::POINT) else {
         return;
     };
+    for view in &views.views {
+        check(view);
+    }
+});
+
+fn check(view: &pvsd::cull::View) {
     assert!(view.eye().is_finite(), "eye {:?}", view.eye());
     for p in view.frustum().planes() {
         assert!(p.normal.is_finite() && p.d.is_finite(), "plane {p:?}");
@@ -35,4 +42,4 @@ fuzz_target!(|data: &[u8]| {
     for c in view.frustum().corners() {
         assert!(c.is_finite(), "corner {c:?}");
     }
-});
+}
