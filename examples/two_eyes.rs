@@ -93,7 +93,7 @@ fn main() {
         // Once untimed: the first pass over a scene pays for its pages.
         run(&|c| (View::new(*c, &scene).unwrap(), Vec::new()));
         let one = run(&|c| (View::new(*c, &scene).unwrap(), Vec::new()));
-        let enclosed = run(&|c| gather(eyes(c), regions, &scene));
+        let enclosed = run(&|c| gather(&eyes(c), regions, &scene));
         let apart = run(&|c| {
             let mut v = eyes(c);
             let first = v.remove(0);

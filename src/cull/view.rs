@@ -97,15 +97,18 @@ pub const ENCLOSE_ANGLE: f64 = 5.0;
 /// lens (field of view, aspect, near, far, viewport), they become one
 /// region view around their mean eye that holds every one of them: one
 /// traversal instead of one per view, for a slightly larger answer.
-pub fn gather(views: Vec<View>, regions: bool, scene: &Scene) -> (View, Vec<View>) {
-    let mut rest = views;
-    let first = rest.remove(0);
+///
+/// # Panics
+/// When `views` is empty (a request has at least one view).
+pub fn gather(views: &[View], regions: bool, scene: &Scene) -> (View, Vec<View>) {
+    let (first, rest) = views.split_first().expect("a request has a view");
+    // One view (the usual request) allocates nothing.
     if rest.is_empty() || !regions {
-        return (first, rest);
+        return (*first, rest.to_vec());
     }
-    match enclose(&first, &rest, scene) {
+    match enclose(first, rest, scene) {
         Some(one) => (one, Vec::new()),
-        None => (first, rest),
+        None => (*first, rest.to_vec()),
     }
 }
 

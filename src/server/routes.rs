@@ -268,7 +268,7 @@ fn views_job(
     cache: ClientCache,
 ) -> CullJob {
     let regions = methods.answers_regions(method.name());
-    let (view, also) = gather(views.views.clone(), regions, methods.scene());
+    let (view, also) = gather(&views.views, regions, methods.scene());
     let mut job = CullJob::new(view, cache);
     job.also = also;
     job
@@ -329,7 +329,7 @@ pub async fn answer_frame(
         scene.check_regions(session.method.name())?;
     }
     let pose = (*views.views[0].camera(), views.radius);
-    let job_views = gather(views.views.clone(), regions, scene.scene());
+    let job_views = gather(&views.views, regions, scene.scene());
     let answered = session.frame(job_views, pose, req.base).await?;
     if let Some(user) = &session.user {
         // Keeps the walkthrough alive while its users walk.
