@@ -1,6 +1,23 @@
 //! Rounding to whole numbers without a libm call: the baseline x86-64
 //! target has no rounding instruction, so `f64::floor` is a function call,
-//! and the raster and the horizon round in their innermost loops.
+//! and the raster and the horizon round in their innermost loops. Also the
+//! least and greatest of two numbers in one instruction each, where
+//! `f64::min` and `f64::max` spend several on NaN rules the caller does not
+//! need.
+
+/// The smaller of `a` and `b`, for an `a` that is not NaN (a running
+/// minimum started at +∞): then exactly `a.min(b)`, a NaN `b` included.
+#[inline]
+pub fn lesser(a: f64, b: f64) -> f64 {
+    if b < a { b } else { a }
+}
+
+/// The larger of `a` and `b`, for an `a` that is not NaN: then exactly
+/// `a.max(b)`, a NaN `b` included.
+#[inline]
+pub fn greater(a: f64, b: f64) -> f64 {
+    if b > a { b } else { a }
+}
 
 /// `⌈x⌉` for finite `x`, saturating at the ends of `i64` (NaN gives 0:
 /// callers rule it out first).
@@ -29,6 +46,25 @@ pub fn floor_i64(x: f64) -> i64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lesser_and_greater_are_min_and_max_for_a_number_first() {
+        let values = [
+            f64::NEG_INFINITY,
+            -1.5,
+            -0.0,
+            0.0,
+            2.0,
+            f64::INFINITY,
+            f64::NAN,
+        ];
+        for a in values.into_iter().filter(|a| !a.is_nan()) {
+            for b in values {
+                assert_eq!(lesser(a, b).to_bits(), a.min(b).to_bits(), "{a} {b}");
+                assert_eq!(greater(a, b).to_bits(), a.max(b).to_bits(), "{a} {b}");
+            }
+        }
+    }
 
     #[test]
     fn they_round_as_libm_does_and_saturate() {

@@ -78,7 +78,7 @@ use crate::cull::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
-use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
+use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side, greater, lesser};
 use crate::scene::Scene;
 use crate::spatial::QuadTree;
 
@@ -237,7 +237,8 @@ enum Kind {
 
 #[derive(Clone, Copy, Debug)]
 struct Event {
-    depth: f64,
+    /// The order of events: depth, then kind, then index ([`Event::new`]).
+    key: (u64, u64),
     kind: Kind,
     index: u32,
     /// A cell's planes still to test (its parent was inside the others);
@@ -246,15 +247,26 @@ struct Event {
 }
 
 impl Event {
+    /// An event at `depth`. Its key orders events as `f64::total_cmp` of
+    /// the depths, then the kinds, then the indices (two integer compares
+    /// where the heap's sifting spent most of a pop on the float's).
+    fn new(depth: f64, kind: Kind, index: u32, planes: PlaneMask) -> Event {
+        // `total_cmp`'s own mapping of a float to an ordered integer, moved
+        // to unsigned.
+        let bits = depth.to_bits() as i64;
+        let ordered = bits ^ (((bits >> 63) as u64) >> 1) as i64;
+        Event {
+            key: ((ordered as u64) ^ (1 << 63), ((kind as u64) << 32) | u64::from(index)),
+            kind,
+            index,
+            planes,
+        }
+    }
+
     /// A cell's or an object's event: `index` is its [`Pending`] slot.
     fn pending(depth: f64, kind: Kind, planes: PlaneMask, pending: &mut Vec<Pending>, p: Pending) -> Event {
         pending.push(p);
-        Event {
-            depth,
-            kind,
-            index: (pending.len() - 1) as u32,
-            planes,
-        }
+        Event::new(depth, kind, (pending.len() - 1) as u32, planes)
     }
 }
 
@@ -272,11 +284,7 @@ impl PartialOrd for Event {
 impl Ord for Event {
     /// Reversed: the heap pops the nearest event, tests before masks.
     fn cmp(&self, other: &Self) -> Ordering {
-        other
-            .depth
-            .total_cmp(&self.depth)
-            .then(other.kind.cmp(&self.kind))
-            .then(other.index.cmp(&self.index))
+        other.key.cmp(&self.key)
     }
 }
 
@@ -425,19 +433,19 @@ impl Sweep {
         // the nearest and farthest depth (y / t is monotone in t, rounding
         // included). The same values as projecting all eight corners (up to
         // the sign of a zero).
-        let tall = lo.y.abs().max(hi.y.abs());
+        let tall = greater(lo.y.abs(), hi.y.abs());
         let (mut t_near, mut t_far) = (f64::INFINITY, f64::NEG_INFINITY);
         let (mut x_lo, mut x_hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for (x, z) in [(lo.x, lo.z), (hi.x, lo.z), (lo.x, hi.z), (hi.x, hi.z)] {
             let rel = DVec3::new(x, 0.0, z);
             let t = rel.dot(self.d);
-            let size = x.abs().max(z.abs()).max(tall);
+            let size = greater(greater(tall, x.abs()), z.abs());
             if t.partial_cmp(&(DEPTH_EPSILON * size)) != Some(Ordering::Greater) {
                 return None;
             }
             let x = rel.dot(self.r) / t;
-            (x_lo, x_hi) = (x_lo.min(x), x_hi.max(x));
-            (t_near, t_far) = (t_near.min(t), t_far.max(t));
+            (x_lo, x_hi) = (lesser(x_lo, x), greater(x_hi, x));
+            (t_near, t_far) = (lesser(t_near, t), greater(t_far, t));
         }
         if self.clamp_from > 0.0 && t_near >= self.clamp_from {
             // A region's box: only its part inside the frustum matters,
@@ -485,10 +493,8 @@ impl Sweep {
                 return None;
             }
             let x = rel.dot(self.r) / t;
-            x_lo = x_lo.min(x);
-            x_hi = x_hi.max(x);
-            near = near.min(t);
-            far = far.max(t);
+            (x_lo, x_hi) = (lesser(x_lo, x), greater(x_hi, x));
+            (near, far) = (lesser(near, t), greater(far, t));
         }
         // The lowest projected corner of the top (Fig. 4c).
         let height = if rise >= 0.0 { rise / far } else { rise / near };
@@ -588,12 +594,7 @@ impl CullMethod for HorizonCulling {
         let ground = self.prisms.ground();
         for (i, b) in occludees.boxes().iter().enumerate() {
             if occludees.visible()[i] && sweep.occludes && f64::from(b.min.y) >= ground {
-                state.queue.push(Event {
-                    depth: sweep.near_depth(b),
-                    kind: Kind::Dynamic,
-                    index: i as u32,
-                    planes: 0,
-                });
+                state.queue.push(Event::new(sweep.near_depth(b), Kind::Dynamic, i as u32, 0));
             }
         }
         while let Some(ev) = state.queue.pop() {
@@ -694,12 +695,7 @@ impl CullMethod for HorizonCulling {
                     if sweep.occludes && !sweep.reaches_into(bounds) {
                         for prism in self.prisms.of(id) {
                             if let Some((mask, far)) = sweep.mask(prism) {
-                                state.queue.push(Event {
-                                    depth: far,
-                                    kind: Kind::Mask,
-                                    index: state.masks.len() as u32,
-                                    planes: 0,
-                                });
+                                state.queue.push(Event::new(far, Kind::Mask, state.masks.len() as u32, 0));
                                 state.masks.push(mask);
                             }
                         }

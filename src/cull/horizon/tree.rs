@@ -16,7 +16,7 @@
 //! only the columns it covers *wholly*, and a test looks at every column
 //! its frame *touches*.
 
-use crate::geom::{ceil_i64, floor_i64};
+use crate::geom::{ceil_i64, floor_i64, greater, lesser};
 
 /// Columns per block.
 const BLOCK: usize = 16;
@@ -123,9 +123,9 @@ impl Horizon {
             let mut lowest = f64::INFINITY;
             for c in first..=last {
                 if (lo..=hi).contains(&c) {
-                    self.heights[c] = self.heights[c].max(height);
+                    self.heights[c] = greater(self.heights[c], height);
                 }
-                lowest = lowest.min(self.heights[c].max(floor));
+                lowest = lesser(lowest, greater(self.heights[c], floor));
             }
             self.lowest[b] = lowest;
         }
@@ -171,7 +171,7 @@ impl Horizon {
             let floor = self.floors[b];
             if self.heights[first.max(lo)..=last.min(hi)]
                 .iter()
-                .any(|&h| h.max(floor) <= top)
+                .any(|&h| greater(h, floor) <= top)
             {
                 return false;
             }
