@@ -14,7 +14,7 @@ use glam::{DVec3, Vec3};
 
 use super::buffer::{CellRect, DepthBuffer};
 use crate::cull::View;
-use crate::geom::{Aabb, Plane, ceil_i64, floor_i64};
+use crate::geom::{Aabb, Plane, ceil_i64, floor_i64, greater, lesser};
 
 /// An occluder's corners must lie inside a pixel centre's edge planes by
 /// this share of their squared distance from the eye (times the ray's
@@ -190,20 +190,21 @@ impl Screen {
         let (mut y_lo, mut y_hi, mut x_lo, mut x_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
         for &v in poly {
             let (x, y) = self.screen_of(v);
-            (x_lo, x_hi, y_lo, y_hi) = (x_lo.min(x), x_hi.max(x), y_lo.min(y), y_hi.max(y));
+            (x_lo, x_hi) = (lesser(x_lo, x), greater(x_hi, x));
+            (y_lo, y_hi) = (lesser(y_lo, y), greater(y_hi, y));
         }
         if !(x_hi >= 0.0 && x_lo <= self.width && y_hi >= 0.0 && y_lo <= self.height) {
             return false;
         }
         // Hidden already where it would write (each cell above its nearest
         // inverse depth): drawing it would change nothing.
-        let z_min = poly.iter().map(|v| v.z).fold(f64::INFINITY, f64::min);
+        let z_min = poly.iter().map(|v| v.z).fold(f64::INFINITY, lesser);
         let c = self.cell as f64;
         let cells = CellRect {
-            x0: (x_lo / c).floor().max(0.0) as usize,
-            y0: (y_lo / c).floor().max(0.0) as usize,
-            x1: (x_hi / c).floor().min(self.cols as f64 - 1.0) as usize,
-            y1: (y_hi / c).floor().min(self.rows as f64 - 1.0) as usize,
+            x0: floor_i64(x_lo / c).max(0) as usize,
+            y0: floor_i64(y_lo / c).max(0) as usize,
+            x1: floor_i64(x_hi / c).min(self.cols as i64 - 1) as usize,
+            y1: floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize,
         };
         if buffer.hides(cells, (1.0 / z_min) as f32) {
             return false;
@@ -280,13 +281,13 @@ impl Screen {
             * f32::EPSILON as f64
             * (1.0 / z_min + 2.0 * self.cols as f64 * step.abs())
             + f32::MIN_POSITIVE as f64;
-        let row_first = ((y_lo / c).floor().max(0.0)) as usize;
-        let row_last = ((y_hi / c).floor().min(self.rows as f64 - 1.0)) as usize;
+        let row_first = floor_i64(y_lo / c).max(0) as usize;
+        let row_last = floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize;
         let last_col = self.cols as i64 - 1;
         for row in row_first..=row_last {
             // The first and last pixel centres of the cell row.
             let y_top = (row * self.cell) as f64 + 0.5;
-            let y_bot = ((row * self.cell + self.cell - 1) as f64).min(self.height - 1.0) + 0.5;
+            let y_bot = lesser((row * self.cell + self.cell - 1) as f64, self.height - 1.0) + 0.5;
             if level.iter().any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0) {
                 continue;
             }
@@ -294,11 +295,11 @@ impl Screen {
             // known from its slope, and ⌈max⌉ = max⌈⌉.
             let mut first = 0.0f64;
             for &(p, q) in left.iter() {
-                first = first.max(p + q * if q > 0.0 { y_bot } else { y_top });
+                first = greater(first, p + q * if q > 0.0 { y_bot } else { y_top });
             }
             let mut last = last_col as f64;
             for &(p, q) in right.iter() {
-                last = last.min(p + q * if q < 0.0 { y_bot } else { y_top });
+                last = lesser(last, p + q * if q < 0.0 { y_bot } else { y_top });
             }
             let (lo, hi) = (ceil_i64(first), floor_i64(last));
             if lo > hi {
@@ -380,10 +381,11 @@ impl Screen {
             if v.z.partial_cmp(&(self.near + self.slack)) != Some(std::cmp::Ordering::Greater) {
                 return Footprint::Near;
             }
-            z_min = z_min.min(v.z);
+            z_min = lesser(z_min, v.z);
             let inv = 1.0 / v.z;
             let (x, y) = (v.x * inv, v.y * inv);
-            (x_lo, x_hi, y_lo, y_hi) = (x_lo.min(x), x_hi.max(x), y_lo.min(y), y_hi.max(y));
+            (x_lo, x_hi) = (lesser(x_lo, x), greater(x_hi, x));
+            (y_lo, y_hi) = (lesser(y_lo, y), greater(y_hi, y));
         }
         // The corners' rounding, moved to the screen: the slack over the
         // nearest depth in tangent units, more for corners off to the
