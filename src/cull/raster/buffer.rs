@@ -31,6 +31,9 @@ pub struct DepthBuffer {
     rows: usize,
     /// Row length in memory: `cols` rounded up to whole tiles.
     stride: usize,
+    /// Tiles per row of tiles: `stride / TILE`, kept so that finding a
+    /// tile costs no division (one per raised row, otherwise).
+    tiles_across: usize,
     cells: Vec<f32>,
     /// Per row, the columns written since the last clear (`lo..hi`), so a
     /// clear touches only those and a tile with an unwritten row is known
@@ -52,6 +55,7 @@ impl DepthBuffer {
             cols: 0,
             rows: 0,
             stride: 0,
+            tiles_across: 0,
             cells: Vec::new(),
             written: Vec::new(),
             tiles: Vec::new(),
@@ -71,9 +75,10 @@ impl DepthBuffer {
             self.cols = cols;
             self.rows = rows;
             self.stride = cols.div_ceil(TILE) * TILE;
+            self.tiles_across = self.stride / TILE;
             self.cells = vec![0.0; self.stride * rows];
             self.written = vec![(u32::MAX, 0); rows];
-            self.tiles = vec![0.0; (self.stride / TILE) * rows.div_ceil(TILE)];
+            self.tiles = vec![0.0; self.tiles_across * rows.div_ceil(TILE)];
             self.stale = vec![false; self.tiles.len()];
             return;
         }
@@ -96,13 +101,13 @@ impl DepthBuffer {
             .raise(&mut self.cells[at + x0..=at + x1], base, step);
         let w = &mut self.written[y];
         *w = (w.0.min(x0 as u32), w.1.max(x1 as u32 + 1));
-        let first = (y / TILE) * (self.stride / TILE);
+        let first = (y / TILE) * self.tiles_across;
         self.stale[first + x0 / TILE..=first + x1 / TILE].fill(true);
     }
 
     /// The least value of tile `(tx, ty)`, taken again if stale.
     fn tile(&mut self, tx: usize, ty: usize) -> f32 {
-        let t = ty * (self.stride / TILE) + tx;
+        let t = ty * self.tiles_across + tx;
         if self.stale[t] {
             self.stale[t] = false;
             let (r0, r1) = (ty * TILE, ((ty + 1) * TILE).min(self.rows));

@@ -185,8 +185,9 @@ struct Canvas {
     drawn: Vec<u32>,
     frame: u32,
     stack: Vec<(u32, PlaneMask)>,
-    /// An object's clusters to draw, with their scale, nearest first.
-    order: Vec<(f64, u32)>,
+    /// An object's clusters to draw, with their scale and the frustum
+    /// planes they cross, nearest first.
+    order: Vec<(f64, u32, PlaneMask)>,
     /// How many times a box that is not hidden whole is halved and tried again.
     splits: u32,
     /// Polygons this frame may still draw.
@@ -336,14 +337,16 @@ impl RasterCulling {
         order.clear();
         for (i, cluster) in clusters.iter().enumerate() {
             let scale = screen.pixels_per_unit(&cluster.bounds);
-            if 2.0 * cluster.largest * scale >= min_size
-                && view.frustum().classify(&cluster.bounds, ALL_PLANES).0 != Side::Outside
-            {
-                order.push((scale, i as u32));
+            if 2.0 * cluster.largest * scale < min_size {
+                continue;
+            }
+            let (side, crossed) = view.frustum().classify(&cluster.bounds, ALL_PLANES);
+            if side != Side::Outside {
+                order.push((scale, i as u32, crossed));
             }
         }
         order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-        for &(scale, i) in &order {
+        for &(scale, i, crossed) in &order {
             let cluster = &clusters[i as usize];
             if canvas.budget == 0 {
                 break;
@@ -360,8 +363,12 @@ impl RasterCulling {
                 if 2.0 * s.radius * scale < min_size {
                     break;
                 }
+                // Only the planes the cluster's box crosses can have the
+                // surface outside.
                 if away * s.plane.signed_distance(eye) > 0.0
-                    || planes.iter().any(|p| p.signed_distance(s.centre) < -s.radius)
+                    || planes.iter().enumerate().any(|(k, p)| {
+                        crossed & (1 << k) != 0 && p.signed_distance(s.centre) < -s.radius
+                    })
                     || screen.pixels_across(s.centre, s.radius) < min_size
                 {
                     continue;

@@ -284,10 +284,16 @@ impl Screen {
         let row_first = floor_i64(y_lo / c).max(0) as usize;
         let row_last = floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize;
         let last_col = self.cols as i64 - 1;
+        // Pixel rows and columns are whole numbers, exact in f64 (and
+        // counted as i64: converting an unsigned one costs several steps).
+        let last_centre = self.height - 0.5;
+        let mut y_top = (row_first * self.cell) as i64 as f64 + 0.5;
         for row in row_first..=row_last {
             // The first and last pixel centres of the cell row.
-            let y_top = (row * self.cell) as f64 + 0.5;
-            let y_bot = lesser((row * self.cell + self.cell - 1) as f64, self.height - 1.0) + 0.5;
+            if row > row_first {
+                y_top += c;
+            }
+            let y_bot = lesser(y_top + (c - 1.0), last_centre);
             if level.iter().any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0) {
                 continue;
             }
@@ -305,9 +311,9 @@ impl Screen {
             if lo > hi {
                 continue;
             }
-            let (lo, hi) = (lo as usize, hi as usize);
             // The farthest of the cell's corner centres: the least w.
-            let x_first = (lo * self.cell) as f64 + 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
+            let x_first = (lo as f64) * c + 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
+            let (lo, hi) = (lo as usize, hi as usize);
             let y = if wb < 0.0 { y_bot } else { y_top };
             let base = wa * x_first + wb * y + wc - w_round - f32_margin;
             buffer.raise_span(row, lo, hi, base as f32, step32);
@@ -366,17 +372,12 @@ impl Screen {
         let (ex, ey, ez) = (axis(e.x, 0), axis(e.y, 1), axis(e.z, 2));
         let mut z_min = f64::INFINITY;
         let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        for i in 0..8 {
-            let mut v = base;
-            if i & 1 != 0 {
-                v += ex;
-            }
-            if i & 2 != 0 {
-                v += ey;
-            }
-            if i & 4 != 0 {
-                v += ez;
-            }
+        // Each corner summed in the order x, y, z edge, as a loop over the
+        // eight with a branch per edge would.
+        let (b1, b2) = (base + ex, base + ey);
+        let b3 = b1 + ey;
+        let corners = [base, b1, b2, b3, base + ez, b1 + ez, b2 + ez, b3 + ez];
+        for v in corners {
             // Also NaN: not decidable.
             if v.z.partial_cmp(&(self.near + self.slack)) != Some(std::cmp::Ordering::Greater) {
                 return Footprint::Near;
