@@ -14,7 +14,8 @@
 //!   fallback; [`device`]: the queue in front of a device's thread;
 //! - [`occlusion`]: the vocabulary the object-space occlusion methods share
 //!   (visibility classes, occluder selection, the kd hierarchy, tolerances);
-//!   [`occluder`]: the scene's large planar occluders;
+//!   [`occluder`]: the scene's large planar occluders; [`depth`]: a
+//!   conservative depth buffer at pixel centres (`raster`, `ddo`);
 //! - one folder per method: [`frustum`], [`occlusion_tree`],
 //!   [`supporting_planes`], [`horizon`], [`ddo`], [`gpu`], [`raster`]. A method imports from the shared
 //!   modules, never from another method.
@@ -22,6 +23,7 @@
 //! **Invariant:** culling never mutates a scene; a conservative method never
 //! drops an object whose box-and-triangles could show a pixel.
 
+pub mod depth;
 pub mod device;
 pub mod dispatch;
 pub mod method;

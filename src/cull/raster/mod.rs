@@ -7,12 +7,10 @@
 //! server has that a game does not: polygons merged offline, a kd-tree, and
 //! last frame's answer.
 //!
-//! - [`screen`]: a view set up against the buffer: polygons into cells,
-//!   boxes into the cells they cover and their nearest inverse depth;
-//! - [`buffer`]: the buffer of inverse depths, with 8×8-cell tiles holding
-//!   their farthest value, taken again when a test needs a changed tile;
-//! - [`kernel`]: its two inner loops, in AVX2 and in plain Rust, bit for
-//!   bit the same (option `simd=false` runs the plain ones);
+//! - [`crate::cull::depth`]: the buffer itself (shared with `ddo`): polygons
+//!   drawn where they cover every pixel centre of a cell, boxes tested by
+//!   their outline at their nearest depth, AVX2 and plain loops bit for
+//!   bit alike (option `simd=false` runs the plain ones);
 //! - [`surfaces`]: each object's opaque triangles merged into convex
 //!   polygons, built once per scene.
 //!
@@ -29,50 +27,22 @@
 //! them when it reaches them.) Avatars and movable objects are tested
 //! last, against the whole buffer.
 //!
-//! **Why it never drops a visible object.** Ground truth calls an object
-//! visible when it is the nearest opaque surface at some pixel centre of
-//! the viewport. A box is culled only when every pixel centre its screen
-//! outline covers holds a cell value above the box's nearest inverse depth
-//! (or when it covers no centre at all, and so cannot be drawn). A cell
-//! holds a value `v > 0` only where some drawn polygon covers *every*
-//! pixel centre of the cell, lying there no farther than depth `1/v`; a
-//! polygon is a union of one opaque object's own triangles (see-through
-//! triangles are never drawn), so at such a centre truth's nearest surface
-//! is at least that near, and every point of the box is farther: nothing
-//! of it wins the centre. What is drawn, and in which order, changes only
-//! how much is culled. The roundings all go one way:
-//! - coverage: a centre counts as covered only inside all of the
-//!   polygon's edge planes (through the eye) by a slack above `f64`
-//!   rounding, the merge's 1e-12 collinearity, and 1e-4 of a pixel, after
-//!   clipping the polygon to beyond a near plane pushed out by 1e-9;
-//! - depth: the polygon is taken as far from the eye as its thickness
-//!   allows (four `f32` ulps of its coordinates: the merge keeps corners
-//!   within two of the plane), so its inverse depth is a lower bound; a
-//!   cell takes the least over its corner centres (inverse depth is affine
-//!   on screen, so that is the least over all of them); the value is moved
-//!   down by the error of its `f32` evaluation `base + k·step` before it is
-//!   written;
-//! - boxes: the outline is widened by the view transform's rounding and
-//!   the pixel slack, and the nearest depth moved nearer by it, the
-//!   inverse depth rounded up to `f32`; a box reaching the near plane is
-//!   never culled; the comparison is strict, so a tie is visible.
-//!
-//! Cells of `cell × cell` pixels (`cell=2`, `4`) keep the argument: a cell
-//! is written only where a polygon covers all of its centres, with the
-//! least of their depths.
+//! **Why it never drops a visible object.** The buffer's rule
+//! ([`crate::cull::depth`]) hides a box only behind drawn polygons that
+//! cover every pixel centre it could win, and each polygon drawn here is a
+//! union of one opaque object's own triangles (see-through triangles are
+//! never drawn), taken as far from the eye as its thickness allows (four
+//! `f32` ulps of its coordinates: the merge keeps corners within two of
+//! the plane). What is drawn, and in which order, changes only how much is
+//! culled.
 
-mod buffer;
-mod kernel;
-mod screen;
 mod surfaces;
 
 use std::sync::{Arc, Mutex};
 
-use buffer::DepthBuffer;
-use kernel::Kernel;
-use screen::{Footprint, Scratch, Screen};
 use surfaces::{Outside, Surfaces};
 
+use super::depth::{DepthBuffer, Footprint, Kernel, Scratch, Screen};
 use super::occlusion::Visibility;
 use super::occlusion::hierarchy;
 use super::{

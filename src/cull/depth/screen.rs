@@ -10,7 +10,7 @@
 //! affine in `(x, y)`: the side of a plane through the eye (an occluder's
 //! edge seen from the eye) and the inverse depth `1/z` of a plane.
 
-use glam::{DVec3, Vec3};
+use glam::DVec3;
 
 use super::buffer::{CellRect, DepthBuffer};
 use crate::cull::View;
@@ -154,9 +154,9 @@ impl Screen {
     /// among those centres, with the polygon taken `thickness` farther
     /// from the eye than its plane (what its triangles may stray from it).
     /// Whether it was drawn (not off the view, edge-on, or hidden already).
-    pub fn draw(
+    pub fn draw<C: Copy + Into<DVec3>>(
         &self,
-        corners: &[Vec3],
+        corners: &[C],
         plane: &Plane,
         thickness: f64,
         buffer: &mut DepthBuffer,
@@ -220,7 +220,10 @@ impl Screen {
             orientation += e.dot(centroid);
             let size = a.length_squared().max(b.length_squared()).sqrt();
             let tol = (EDGE_SLACK * size + self.slack * 4.0) * size * self.ray;
-            let (ea, eb) = (2.0 * e.x * self.tx / self.width, -2.0 * e.y * self.ty / self.height);
+            let (ea, eb) = (
+                2.0 * e.x * self.tx / self.width,
+                -2.0 * e.y * self.ty / self.height,
+            );
             edges.push((ea, eb, -e.x * self.tx + e.y * self.ty + e.z, tol));
         }
         if !(orientation != 0.0 && orientation.is_finite()) {
@@ -238,8 +241,7 @@ impl Screen {
         let wa = 2.0 * n.x * self.tx / (self.width * far_side);
         let wb = -2.0 * n.y * self.ty / (self.height * far_side);
         let wc = (-n.x * self.tx + n.y * self.ty + n.z) / far_side;
-        let w_round = TRANSFORM_SLACK
-            * (wa.abs() * self.width + wb.abs() * self.height + wc.abs());
+        let w_round = TRANSFORM_SLACK * (wa.abs() * self.width + wb.abs() * self.height + wc.abs());
         if !(wa.is_finite() && wb.is_finite() && wc.is_finite()) {
             return false;
         }
@@ -277,10 +279,9 @@ impl Screen {
         // bound it, and `base` is lowered by that before conversion.
         let step = wa * c;
         let step32 = step as f32;
-        let f32_margin = 3.0
-            * f32::EPSILON as f64
-            * (1.0 / z_min + 2.0 * self.cols as f64 * step.abs())
-            + f32::MIN_POSITIVE as f64;
+        let f32_margin =
+            3.0 * f32::EPSILON as f64 * (1.0 / z_min + 2.0 * self.cols as f64 * step.abs())
+                + f32::MIN_POSITIVE as f64;
         let row_first = floor_i64(y_lo / c).max(0) as usize;
         let row_last = floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize;
         let last_col = self.cols as i64 - 1;
@@ -294,7 +295,10 @@ impl Screen {
                 y_top += c;
             }
             let y_bot = lesser(y_top + (c - 1.0), last_centre);
-            if level.iter().any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0) {
+            if level
+                .iter()
+                .any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0)
+            {
                 continue;
             }
             // Each bound is affine in y: the binding one of the two rows is
@@ -324,7 +328,7 @@ impl Screen {
     /// `corners` moved to view space and clipped to beyond the near plane,
     /// into `out` (fewer than three corners: nothing left). Corners that
     /// round together are merged.
-    fn clip_near(&self, corners: &[Vec3], out: &mut Vec<DVec3>) {
+    fn clip_near<C: Copy + Into<DVec3>>(&self, corners: &[C], out: &mut Vec<DVec3>) {
         let near = self.near * (1.0 + NEAR_SLACK) + self.slack;
         out.clear();
         let push = |p: DVec3, out: &mut Vec<DVec3>| {
@@ -336,9 +340,9 @@ impl Screen {
             }
         };
         let n = corners.len();
-        let mut a = self.view_of(corners[n - 1].as_dvec3());
+        let mut a = self.view_of(corners[n - 1].into());
         for &c in corners {
-            let b = self.view_of(c.as_dvec3());
+            let b = self.view_of(c.into());
             let (ina, inb) = (a.z >= near, b.z >= near);
             if ina != inb {
                 let t = (near - a.z) / (b.z - a.z);
@@ -366,9 +370,8 @@ impl Screen {
         // Corners as the near corner plus the box's edges in view space.
         let e = (b.max - b.min).as_dvec3();
         let base = self.view_of(b.min.as_dvec3());
-        let axis = |len: f64, a: usize| {
-            DVec3::new(self.right[a], self.up[a], self.forward[a]) * len
-        };
+        let axis =
+            |len: f64, a: usize| DVec3::new(self.right[a], self.up[a], self.forward[a]) * len;
         let (ex, ey, ez) = (axis(e.x, 0), axis(e.y, 1), axis(e.z, 2));
         let mut z_min = f64::INFINITY;
         let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);

@@ -120,7 +120,9 @@ mod avx2 {
         let mut m = _mm256_set1_ps(f32::INFINITY);
         for r in 0..rows {
             // SAFETY: checked by the assertion above.
-            m = _mm256_min_ps(m, unsafe { _mm256_loadu_ps(cells.as_ptr().add(r * stride)) });
+            m = _mm256_min_ps(m, unsafe {
+                _mm256_loadu_ps(cells.as_ptr().add(r * stride))
+            });
         }
         let mut out = [0f32; 8];
         // SAFETY: `out` holds eight floats.

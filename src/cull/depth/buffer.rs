@@ -86,7 +86,8 @@ impl DepthBuffer {
         self.stale.fill(false);
         for (y, w) in self.written.iter_mut().enumerate() {
             if w.0 < w.1 {
-                self.cells[y * self.stride + w.0 as usize..y * self.stride + w.1 as usize].fill(0.0);
+                self.cells[y * self.stride + w.0 as usize..y * self.stride + w.1 as usize]
+                    .fill(0.0);
             }
             *w = (u32::MAX, 0);
         }
