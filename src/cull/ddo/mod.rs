@@ -11,18 +11,33 @@
 //!
 //! At run time (§4, Fig. 7) the octree is walked front to back (the eye's
 //! octant first, then by the eye's side of each splitting plane). A node
-//! outside the frustum is dropped; one whose bounding rectangle on an
-//! occlusion map lies inside the union of occluder rectangles there is
-//! hidden; a visible leaf reports its objects (each one whose box touches
+//! outside the frustum is dropped; one the occlusion map hides is
+//! dropped; a visible leaf reports its objects (each one whose box touches
 //! the frustum). When a node is done, each of its faces that the node lies
 //! between the eye and (the eye at least [`CLIP`] node sizes away) and
 //! whose mask has the eye's region is added to a map.
 //!
-//! **The maps' planes** (§4.2). The paper projects onto the coordinate
-//! plane most facing the view (`planes=best`): points are projected from
-//! the eye onto `z = 1`, `z` being the distance along that axis, and a
-//! face perpendicular to the plane projects to a trapezoid, of which the
-//! largest axis-aligned rectangle inside is added. By default
+//! **The screen map** (`map=screen`, the default). Faces valid from the
+//! eye are drawn, at their own depth, into the conservative depth buffer
+//! of [`crate::cull::depth`] at the viewport's pixel centres, and nodes
+//! (and, in a visible leaf, each object's part in the leaf) are tested by
+//! their outline at their nearest depth. A face valid from the eye has the
+//! bake's opaque triangles in front of it along every ray from the eye
+//! through it, which is all the buffer's rule asks of a polygon (its
+//! module doc is the argument, roundings included): a box is hidden only
+//! where every pixel centre it covers is covered by such a face nearer
+//! than all of it, so truth's nearest surface there is nearer still. The
+//! depth test needs no front-to-back order, so faces wait for nothing; a
+//! box reaching the near plane is never hidden, and a face is clipped to
+//! beyond it. Sampling at pixel centres as truth does closes the seams
+//! between neighbouring faces, of one plane or of several, that the
+//! coordinate-plane maps below leave open; docs/ddo.md measures both.
+//!
+//! **The maps' planes** (§4.2, `map=exact|grid`). The paper projects onto
+//! the coordinate plane most facing the view (`planes=best`): points are
+//! projected from the eye onto `z = 1`, `z` being the distance along that
+//! axis, and a face perpendicular to the plane projects to a trapezoid, of
+//! which the largest axis-aligned rectangle inside is added. By default
 //! (`planes=all`) there is a map per coordinate plane and direction, each
 //! taking the faces parallel to it as exact rectangles, and a node is
 //! hidden when one map hides it (or, with `splits`, when each quarter of
@@ -68,13 +83,16 @@ use super::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
-use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
+use super::depth::{DepthBuffer, Footprint, Kernel, Scratch, Screen};
+use crate::geom::{ALL_PLANES, Aabb, Plane, PlaneMask, Side};
 use crate::scene::{BakeCache, Scene};
 
 /// `regions=32|64`: which of the baked masks is used.
 const REGIONS: &str = "regions";
 
-/// `map=exact|grid`: the occlusion map's form ([`map`]).
+/// `map=screen|exact|grid`: the occlusion map's form: a depth buffer at
+/// the viewport's pixel centres, or rectangles on coordinate planes
+/// ([`map`]).
 const MAP: &str = "map";
 
 /// Cells along each side of the grid map.
@@ -128,7 +146,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     name: "ddo",
     purpose: "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
     options: &OPTIONS,
-    checked_with: &["regions=32", "map=grid:cells=16", "splits=2"],
+    checked_with: &["regions=32", "map=exact", "map=grid:cells=16", "map=exact:splits=2"],
     regions: Some("its octree faces are proven occluders from direction regions of single eyes, not shrunk for a ball of eyes, and its occlusion map is drawn on one camera's plane"),
     build,
 };
@@ -153,12 +171,26 @@ fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
 pub struct DdoCulling {
     scene: Arc<Scene>,
     tree: Octree,
+    /// Bounds every coordinate of the octree's cube.
+    radius: f64,
+    /// Per node, the `f32` box that holds it (rounding outwards costs
+    /// more than reading it).
+    bounds: Vec<Aabb>,
 }
 
 impl DdoCulling {
     /// The method for `scene` with its baked octree.
     pub fn new(scene: Arc<Scene>, tree: Octree) -> DdoCulling {
-        DdoCulling { scene, tree }
+        let radius = tree.nodes().first().map_or(0.0, |root| {
+            root.min.abs().max(root.max().abs()).length()
+        });
+        let bounds = tree.nodes().iter().map(Node::bounds).collect();
+        DdoCulling {
+            scene,
+            tree,
+            radius,
+            bounds,
+        }
     }
 
     /// The octree and its masks.
@@ -182,6 +214,15 @@ pub struct DdoState {
     /// Occluder rectangles (with their map) waiting for a node the eye's
     /// planes cut to end.
     pending: Vec<(usize, Rect)>,
+    /// With `map=screen` (the default): a depth buffer at the viewport's
+    /// pixel centres, in place of `maps`.
+    canvas: Option<Canvas>,
+}
+
+/// A depth buffer at pixel centres and the buffers its drawing reuses.
+struct Canvas {
+    buffer: DepthBuffer,
+    scratch: Scratch,
 }
 
 impl CullMethod for DdoCulling {
@@ -200,8 +241,26 @@ impl CullMethod for DdoCulling {
         let best_plane = r.choice(PLANES, &["all", "best"])? == "best";
         let splits = r.ranged(&SPLITS)?;
         let cells = r.ranged(&CELLS)?;
-        let grid = r.choice(MAP, &["exact", "grid"])? == "grid";
+        let form = r.choice(MAP, &["screen", "exact", "grid"])?;
+        let grid = form == "grid";
         r.finish()?;
+        // The plane maps' own options say nothing to the screen map.
+        if form == "screen"
+            && let Some((key, value)) = options
+                .iter()
+                .find(|(k, _)| [PLANES, CELLS.key, SPLITS.key].contains(k))
+        {
+            return Err(MethodError::InvalidOption {
+                method: "ddo".into(),
+                option: key.into(),
+                value: value.into(),
+                expected: "nothing with map=screen: it shapes the coordinate-plane maps of map=exact or map=grid".into(),
+            });
+        }
+        let canvas = (form == "screen").then(|| Canvas {
+            buffer: DepthBuffer::new(Kernel::detect()),
+            scratch: Scratch::default(),
+        });
         let map = || {
             if grid {
                 OcclusionMap::Grid(CellGrid::new(cells))
@@ -217,6 +276,7 @@ impl CullMethod for DdoCulling {
             seen: vec![0; self.scene.objects().len()],
             frame: 0,
             pending: Vec::new(),
+            canvas,
         })
     }
 
@@ -229,6 +289,7 @@ impl CullMethod for DdoCulling {
             + state.maps.iter().map(OcclusionMap::heap_bytes).sum::<usize>()
             + state.seen.capacity() * 4
             + state.pending.capacity() * std::mem::size_of::<(usize, Rect)>()
+            + state.canvas.as_ref().map_or(0, |c| c.buffer.heap_bytes())
     }
 
     fn cull(
@@ -245,12 +306,22 @@ impl CullMethod for DdoCulling {
         }
         let projection = Projection::of(view, &self.scene);
         let content = self.scene.bounds();
-        for (m, map) in state.maps.iter_mut().enumerate() {
-            map.reset(projection.window(MapPlane::of_index(m), view, &content));
+        if state.canvas.is_none() {
+            for (m, map) in state.maps.iter_mut().enumerate() {
+                map.reset(projection.window(MapPlane::of_index(m), view, &content));
+            }
         }
         state.pending.clear();
+        let screen = state.canvas.as_mut().map(|canvas| {
+            let screen = Screen::new(view, 1, self.radius);
+            let (cols, rows) = screen.cells();
+            canvas.buffer.reset(cols, rows);
+            screen
+        });
         let mut walk = Walk {
+            screen,
             tree: &self.tree,
+            bounds: &self.bounds,
             scene: &self.scene,
             view,
             projection,
@@ -466,7 +537,11 @@ impl Projection {
 
 /// One traversal.
 struct Walk<'a> {
+    /// With `map=screen`, the view against the canvas.
+    screen: Option<Screen>,
     tree: &'a Octree,
+    /// Per node, its `f32` box.
+    bounds: &'a [Aabb],
     scene: &'a Scene,
     view: &'a View,
     projection: Projection,
@@ -480,27 +555,44 @@ struct Walk<'a> {
 impl Walk<'_> {
     fn visit(&mut self, n: usize, mask: PlaneMask) {
         let node = self.tree.nodes()[n];
+        let bounds = self.bounds[n];
         let frustum = self.view.frustum();
         let (side, mask) = if mask == 0 {
             (Side::Inside, 0)
         } else {
-            frustum.classify(&node.bounds(), mask)
+            frustum.classify(&bounds, mask)
         };
         if side == Side::Outside {
             return;
         }
         self.tested += 1;
-        if self.hidden(&node) {
+        if self.hidden(&node, &bounds) {
             return;
         }
         if node.is_leaf() {
             for &id in self.tree.objects_of(&node) {
-                let seen = &mut self.state.seen[id as usize];
-                if *seen == self.state.frame {
+                if self.state.seen[id as usize] == self.state.frame {
                     continue;
                 }
-                *seen = self.state.frame;
-                if frustum.intersects(&self.scene.objects()[id as usize].bounds) {
+                let object = &self.scene.objects()[id as usize].bounds;
+                // On a screen map, the object's part in the leaf (every
+                // point of it that the leaf holds) is tested too: it may
+                // be hidden where the leaf is not, and its other parts
+                // are tested in their own leaves.
+                let visible = match self.screen {
+                    Some(screen) => {
+                        let part = object.clipped(&bounds);
+                        !part.is_empty()
+                            && frustum.intersects(&part)
+                            && !self.screen_hides(&screen, &part)
+                    }
+                    None => {
+                        self.state.seen[id as usize] = self.state.frame;
+                        frustum.intersects(object)
+                    }
+                };
+                if visible {
+                    self.state.seen[id as usize] = self.state.frame;
                     self.out.push(id);
                 }
             }
@@ -534,7 +626,10 @@ impl Walk<'_> {
     /// node seen past an edge or a corner of the surfaces in front, partly
     /// through faces of one plane and partly of another, can still be
     /// hidden.
-    fn hidden(&mut self, node: &Node) -> bool {
+    fn hidden(&mut self, node: &Node, bounds: &Aabb) -> bool {
+        if let Some(screen) = self.screen {
+            return self.screen_hides(&screen, bounds);
+        }
         if self.state.maps.iter().all(OcclusionMap::is_empty) {
             return false;
         }
@@ -559,6 +654,20 @@ impl Walk<'_> {
         match base {
             Some((plane, r)) => self.quartered(plane, r, 1),
             None => false,
+        }
+    }
+
+    /// Whether the screen map hides all of box `b`: it covers no pixel
+    /// centre, or every centre it covers holds a face nearer than all of
+    /// it.
+    fn screen_hides(&mut self, screen: &Screen, b: &Aabb) -> bool {
+        let Some(canvas) = &mut self.state.canvas else {
+            return false;
+        };
+        match screen.footprint(b) {
+            Footprint::Near => false,
+            Footprint::Nothing => true,
+            Footprint::Cells(rect, w) => canvas.buffer.hides(rect, w),
         }
     }
 
@@ -644,6 +753,21 @@ impl Walk<'_> {
             let share = 1.0 - CLIP * node.size / h;
             let needed = near * (1.0 + NEAR_SLACK) + self.projection.floor;
             if (share * nearest).partial_cmp(&needed).is_none_or(Ordering::is_lt) {
+                continue;
+            }
+            // On the screen map the face is drawn at its own depth, which
+            // needs no front-to-back order: it waits for nothing.
+            if let (Some(screen), Some(canvas)) = (&self.screen, &mut self.state.canvas) {
+                let corners = [(0, 0), (1, 0), (1, 1), (0, 1)].map(|(i, j)| {
+                    let mut p = face_lo;
+                    p[ua] = if i == 0 { lo[ua] } else { hi[ua] };
+                    p[va] = if j == 0 { lo[va] } else { hi[va] };
+                    p
+                });
+                let mut normal = DVec3::ZERO;
+                normal[axis] = 1.0;
+                let plane = Plane { normal, d: -w };
+                screen.draw(&corners, &plane, 0.0, &mut canvas.buffer, &mut canvas.scratch);
                 continue;
             }
             let plane = if self.state.best_plane {
@@ -749,7 +873,7 @@ mod tests {
     fn a_closed_shell_hides_what_it_holds() {
         let method = baked(&boxed_scene(None));
         for eye in [DVec3::new(0.3, 0.2, 5.0), DVec3::new(-4.0, 1.5, 0.7), DVec3::new(3.5, -1.0, 1.5)] {
-            for options in ["", "regions=32", "planes=best"] {
+            for options in ["", "regions=32", "map=exact", "map=exact:planes=best"] {
                 assert_eq!(cull(&method, eye, options), vec![0], "from {eye} with {options:?}");
             }
             // The grid's seams between faces stay open: it only may hide.
@@ -779,7 +903,7 @@ mod tests {
                 let truth = crate::truth::Truth::render(&scene, &camera).expect("a camera");
                 let visible = truth.visible();
                 assert!(!visible.is_empty());
-                for options in ["", "planes=best", "splits=2"] {
+                for options in ["", "map=exact", "map=exact:planes=best", "map=exact:splits=2"] {
                     let got = cull(&method, eye, options);
                     for v in &visible {
                         assert!(got.contains(v), "{v} from {eye} with {options:?}");
@@ -790,12 +914,26 @@ mod tests {
     }
 
     #[test]
+    fn the_screen_map_refuses_the_plane_maps_options() {
+        let method = baked(&boxed_scene(None));
+        for options in ["planes=best", "cells=16", "splits=1", "map=screen:splits=2"] {
+            let mut map = MethodOptions::new();
+            for kv in options.split(':') {
+                let (k, v) = kv.split_once('=').expect("key=value");
+                map.insert(k, v);
+            }
+            let error = method.new_state(&map).err().expect("refused").to_string();
+            assert!(error.contains("map=screen"), "{options}: {error}");
+        }
+    }
+
+    #[test]
     fn a_hole_in_the_shell_shows_what_it_holds() {
         // Cell (8, 8) of the +z face spans [0, 0.125]²: the inner box is
         // seen through it from straight above.
         let method = baked(&boxed_scene(Some((8, 8))));
         let eye = DVec3::new(0.06, 0.06, 5.0);
-        for options in ["", "regions=32", "planes=best", "map=grid"] {
+        for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "map=grid"] {
             assert_eq!(cull(&method, eye, options), vec![0, 1], "with {options:?}");
         }
         // From the other side the shell is whole.
