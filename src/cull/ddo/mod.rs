@@ -722,6 +722,14 @@ impl Walk<'_> {
             if h.partial_cmp(&(CLIP * node.size)).is_none_or(Ordering::is_lt) {
                 continue;
             }
+            // Most faces are valid from no region: skip them before
+            // finding the eye's.
+            let mask = self
+                .tree
+                .mask(n, octree::face_index(axis, side), self.state.regions);
+            if mask == 0 {
+                continue;
+            }
             let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
             let c = node.centre();
             let Some(region) = self
@@ -731,9 +739,6 @@ impl Walk<'_> {
             else {
                 continue;
             };
-            let mask = self
-                .tree
-                .mask(n, octree::face_index(axis, side), self.state.regions);
             if mask >> region & 1 == 0 {
                 continue;
             }
