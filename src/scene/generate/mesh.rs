@@ -98,7 +98,13 @@ impl MeshBuilder {
 
     /// A UV sphere: `stacks` bands from pole to pole, `slices` around.
     pub fn uv_sphere(&mut self, center: Vec3, radius: f32, stacks: u32, slices: u32) {
+        // The seam and the poles are the same points however `sin` and
+        // `cos` round at τ and π, so the sphere closes up exactly.
         let at = |i: u32, j: u32| {
+            if i == 0 || i == stacks {
+                return center + radius * if i == 0 { Vec3::Y } else { -Vec3::Y };
+            }
+            let j = j % slices;
             let theta = std::f32::consts::PI * i as f32 / stacks as f32;
             let phi = std::f32::consts::TAU * j as f32 / slices as f32;
             center
@@ -151,5 +157,23 @@ mod tests {
         let mut m = MeshBuilder::new();
         m.wall_grid(Vec3::ZERO, Vec3::X * 4.0, 3.0, 4, 3);
         assert_eq!(m.triangle_count(), 24);
+    }
+
+    #[test]
+    fn a_sphere_closes_up_exactly() {
+        let mut m = MeshBuilder::new();
+        m.uv_sphere(Vec3::new(0.3, -2.0, 7.0), 1.7, 11, 14);
+        let mesh = m.build(false);
+        let key = |v: Vec3| v.to_array().map(f32::to_bits);
+        let mut edges = std::collections::HashMap::new();
+        for t in mesh.triangles() {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                let (a, b) = (key(a), key(b));
+                *edges
+                    .entry(if a < b { (a, b) } else { (b, a) })
+                    .or_insert(0) += 1;
+            }
+        }
+        assert!(edges.values().all(|&n| n == 2), "{edges:?}");
     }
 }
