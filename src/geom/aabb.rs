@@ -47,6 +47,17 @@ impl Aabb {
         }
     }
 
+    /// The largest `f32` box inside the `f64` box `[min, max]`: each bound
+    /// rounded inwards, so it holds no point the other does not; `None`
+    /// when nothing with positive extent is left.
+    pub fn enclosed(min: DVec3, max: DVec3) -> Option<Self> {
+        let b = Aabb {
+            min: Vec3::new(round_up(min.x), round_up(min.y), round_up(min.z)),
+            max: Vec3::new(round_down(max.x), round_down(max.y), round_down(max.z)),
+        };
+        b.min.cmplt(b.max).all().then_some(b)
+    }
+
     /// Whether the box holds no point.
     pub fn is_empty(&self) -> bool {
         !(self.min.x <= self.max.x && self.min.y <= self.max.y && self.min.z <= self.max.z)
@@ -168,6 +179,23 @@ mod tests {
                 "{v}"
             );
         }
+    }
+
+    #[test]
+    fn enclosed_rounds_inwards() {
+        let (lo, hi) = (
+            DVec3::new(0.1, -1e7 - 0.3, 1.0),
+            DVec3::new(0.7, 1e7 + 0.3, 1.5),
+        );
+        let b = Aabb::enclosed(lo, hi).unwrap();
+        for a in 0..3 {
+            assert!(f64::from(b.min[a]) >= lo[a] && f64::from(b.max[a]) <= hi[a]);
+        }
+        assert_eq!(b.min.z, 1.0);
+        assert_eq!(
+            Aabb::enclosed(DVec3::splat(1e7 + 0.1), DVec3::splat(1e7 + 0.2)),
+            None
+        );
     }
 
     #[test]
