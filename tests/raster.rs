@@ -253,6 +253,75 @@ fn extremes_of_the_wall_and_box() {
     }
 }
 
+/// The faces of the box `min..max`, each split into `n × n` squares whose
+/// inner corners are pushed in and out by up to 0.03 (so no two triangles
+/// merge): a closed skin of triangles too small to draw one by one.
+fn skin(min: DVec3, max: DVec3, n: usize) -> Vec<[DVec3; 3]> {
+    let mut out = Vec::new();
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        for at in [min[axis], max[axis]] {
+            let p = |a: usize, b: usize| {
+                let mut c = DVec3::ZERO;
+                c[axis] = at;
+                c[u] = min[u] + (max[u] - min[u]) * a as f64 / n as f64;
+                c[v] = min[v] + (max[v] - min[v]) * b as f64 / n as f64;
+                if a != 0 && a != n && b != 0 && b != n {
+                    c[axis] += 0.015 * ((a * 7 + b * 13) % 5) as f64 - 0.03;
+                }
+                c
+            };
+            for a in 0..n {
+                for b in 0..n {
+                    out.push([p(a, b), p(a + 1, b), p(a + 1, b + 1)]);
+                    out.push([p(a, b), p(a + 1, b + 1), p(a, b + 1)]);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// A hollow box of tiny triangles (object 0: walls 0.2 thick, both skins
+/// closed), a box in its hollow (1) and one behind it (2). From outside,
+/// its proxies hide both boxes, which its triangles alone (each under
+/// `min_size`) do not; from inside its hollow, proxies are not drawn and
+/// what truth sees is kept.
+#[test]
+fn proxies_inside_a_skin_of_tiny_triangles_hide_what_it_hides() {
+    let (lo, hi) = (DVec3::splat(-2.0), DVec3::splat(2.0));
+    let mut b = SceneBuilder::new("shell");
+    b.begin_object("shell", None);
+    b.add_triangles(skin(lo, hi, 40), false);
+    b.add_triangles(skin(lo + 0.2, hi - 0.2, 40), false);
+    b.begin_object("inside", None);
+    b.add_triangles(solid(Vec3::splat(-0.3), Vec3::splat(0.3)), false);
+    b.begin_object("behind", None);
+    b.add_triangles(
+        solid(Vec3::new(-0.5, -0.5, -6.0), Vec3::new(0.5, 0.5, -5.0)),
+        false,
+    );
+    let scene = Arc::new(b.finish());
+    let methods = SceneMethods::prepare(scene.clone());
+    let outside = camera(DVec3::new(0.3, 0.4, 12.0), -DVec3::Z);
+    assert_eq!(Truth::render(&scene, &outside).unwrap().visible(), vec![0]);
+    assert_eq!(raster(&methods, outside, ""), vec![0]);
+    assert_eq!(raster(&methods, outside, "cell=1"), vec![0]);
+    assert_eq!(raster(&methods, outside, "proxies=false"), vec![0, 1, 2]);
+    // In the hollow, looking at the inner box and past it.
+    for eye in [DVec3::new(0.1, 0.2, 1.5), DVec3::new(1.7, 1.7, 1.7)] {
+        let cam = camera(eye, -eye);
+        let truth = Truth::render(&scene, &cam).unwrap().visible();
+        assert!(truth.contains(&1), "{truth:?} from {eye}");
+        for options in ["", "cell=1", "proxies=false"] {
+            let got = raster(&methods, cam, options);
+            for v in &truth {
+                assert!(got.contains(v), "{v} dropped with {options:?} from {eye}");
+            }
+        }
+    }
+}
+
 /// Some closed boxes and walls at random (a few shared-plane and touching).
 fn random_scene(seed: u64) -> Arc<Scene> {
     use rand::Rng;

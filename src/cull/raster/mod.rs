@@ -12,7 +12,12 @@
 //!   their outline at their nearest depth, AVX2 and plain loops bit for
 //!   bit alike (option `simd=false` runs the plain ones);
 //! - [`surfaces`]: each object's opaque triangles merged into convex
-//!   polygons, built once per scene.
+//!   polygons, built once per scene;
+//! - [`proxies`]: for closed objects made of many small polygons, boxes
+//!   inside their solid (found on a voxel grid, kept in the bake cache),
+//!   whose faces hide what the object's skin hides where no single polygon
+//!   of it is large enough to fill a cell (option `proxies=false` leaves
+//!   them out).
 //!
 //! **Per frame.** First the buffer gets what is likely to hide the most:
 //! the objects a session's last frame found visible (the first of the two
@@ -33,13 +38,18 @@
 //! union of one opaque object's own triangles (see-through triangles are
 //! never drawn), taken as far from the eye as its thickness allows (four
 //! `f32` ulps of its coordinates: the merge keeps corners within two of
-//! the plane). What is drawn, and in which order, changes only how much is
+//! the plane), or the face of a proxy inside a closed object, drawn only
+//! when the eye is outside the object's box and the box beyond the near
+//! plane: then the object's own surface lies in front of the proxy at
+//! every pixel centre the face covers ([`proxies`] gives the argument). What is drawn, and in which order, changes only how much is
 //! culled.
 
+mod proxies;
 mod surfaces;
 
 use std::sync::{Arc, Mutex};
 
+use proxies::Proxies;
 use surfaces::{Outside, Surfaces};
 
 use super::depth::{DepthBuffer, Footprint, Kernel, Scratch, Screen};
@@ -50,7 +60,7 @@ use super::{
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
 use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side};
-use crate::scene::Scene;
+use crate::scene::{BakeCache, Scene};
 use crate::spatial::{KdTree, NodeKind};
 
 /// The method's registry entry.
@@ -104,21 +114,25 @@ const BUDGET: Ranged<u32> = Ranged {
     max: 1_000_000,
 };
 
-const OPTIONS: [&str; 5] = [
+const OPTIONS: [&str; 6] = [
     CELL.key,
     MIN_SIZE.key,
     SPLITS.key,
     BUDGET.key,
     "simd",
+    "proxies",
 ];
 
 fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
     let scene = p.scene().clone();
     let started = std::time::Instant::now();
-    let surfaces = Surfaces::build(&scene);
+    let cache = p.context().bake_dir.as_ref().map(BakeCache::new);
+    let proxies = Proxies::build_cached(&scene, cache.as_ref());
+    let surfaces = Surfaces::build(&scene, &proxies);
     tracing::info!(
         scene = %scene.id,
         polygons = surfaces.len(),
+        proxies = proxies.len(),
         ms = started.elapsed().as_millis() as u64,
         "merged raster surfaces"
     );
@@ -162,6 +176,8 @@ struct Canvas {
     splits: u32,
     /// Polygons this frame may still draw.
     budget: u32,
+    /// Whether closed objects' proxies are drawn.
+    proxies: bool,
 }
 
 impl Canvas {
@@ -175,13 +191,13 @@ impl Canvas {
             order: Vec::new(),
             splits: 0,
             budget: 0,
+            proxies: true,
         }
     }
 
     /// Starts a frame over `objects` objects.
-    fn begin(&mut self, objects: usize, cols: usize, rows: usize, splits: u32, budget: u32) {
-        self.splits = splits;
-        self.budget = budget;
+    fn begin(&mut self, objects: usize, (cols, rows): (usize, usize), state: &RasterState) {
+        (self.splits, self.budget, self.proxies) = (state.splits, state.budget, state.proxies);
         self.buffer.reset(cols, rows);
         self.drawn.resize(objects, 0);
         self.frame = self.frame.wrapping_add(1);
@@ -260,6 +276,7 @@ pub struct RasterState {
     min_size: f64,
     splits: u32,
     budget: u32,
+    proxies: bool,
     kernel: Kernel,
     /// The objects last frame found visible (empty before the first).
     last: Vec<u32>,
@@ -286,17 +303,14 @@ impl RasterCulling {
         canvas.drawn[id as usize] = canvas.frame;
         let eye = view.eye();
         let bounds = &self.scene.objects()[id as usize].bounds;
-        // A closed object's faces turned away lie behind those turned
-        // towards the eye, unless those are cut away by the near plane (or
-        // the eye is inside): then only the ones turned towards it.
-        let away = if bounds.distance_to(eye) > 0.0 && screen.pixels_per_unit(bounds).is_finite() {
-            match self.surfaces.outside(id) {
-                Outside::Front => -1.0,
-                Outside::Back => 1.0,
-                Outside::Unknown => 0.0,
-            }
-        } else {
-            0.0
+        // Seen from outside its box, all of it beyond the near plane, a
+        // closed object's faces turned away lie behind those turned
+        // towards the eye, and its proxies behind its faces.
+        let outside = bounds.distance_to(eye) > 0.0 && screen.pixels_per_unit(bounds).is_finite();
+        let away = match self.surfaces.outside(id) {
+            Outside::Front if outside => -1.0,
+            Outside::Back if outside => 1.0,
+            _ => 0.0,
         };
         let planes = view.frustum().planes();
         // Clusters on view and large enough, nearest first: a near cluster
@@ -306,6 +320,9 @@ impl RasterCulling {
         let mut order = std::mem::take(&mut canvas.order);
         order.clear();
         for (i, cluster) in clusters.iter().enumerate() {
+            if cluster.inner && !(outside && canvas.proxies) {
+                continue;
+            }
             let scale = screen.pixels_per_unit(&cluster.bounds);
             if 2.0 * cluster.largest * scale < min_size {
                 continue;
@@ -327,6 +344,8 @@ impl RasterCulling {
             if canvas.visibility(screen, &cluster.bounds) == Visibility::Invisible {
                 continue;
             }
+            // Proxies' normals point out of their boxes.
+            let away = if cluster.inner { -1.0 } else { away };
             for s in self.surfaces.of_cluster(cluster) {
                 // Largest first: the first too small at the cluster's
                 // nearest depth ends it.
@@ -436,6 +455,7 @@ impl CullMethod for RasterCulling {
         let min_size = r.ranged(&MIN_SIZE)?;
         let splits = r.ranged(&SPLITS)?;
         let budget = r.ranged(&BUDGET)?;
+        let proxies = r.flag("proxies", true)?;
         let kernel = if r.flag("simd", true)? {
             Kernel::detect()
         } else {
@@ -447,6 +467,7 @@ impl CullMethod for RasterCulling {
             min_size,
             splits,
             budget,
+            proxies,
             kernel,
             last: Vec::new(),
             canvas: None,
@@ -466,19 +487,10 @@ impl CullMethod for RasterCulling {
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
         let screen = Screen::new(view, state.cell, self.radius);
-        let (cols, rows) = screen.cells();
-        let RasterState {
-            min_size,
-            splits,
-            budget,
-            kernel,
-            last,
-            canvas,
-            pool,
-            ..
-        } = state;
-        let canvas = canvas.get_or_insert_with(|| pool.take(*kernel));
-        canvas.begin(self.scene.objects().len(), cols, rows, *splits, *budget);
+        let mut canvas = state.canvas.take().unwrap_or_else(|| state.pool.take(state.kernel));
+        canvas.begin(self.scene.objects().len(), screen.cells(), state);
+        let canvas = state.canvas.insert(canvas);
+        let RasterState { min_size, last, .. } = state;
 
         // What likely hides the most, first: last frame's visible objects.
         for &id in last.iter() {

@@ -5,7 +5,9 @@
 //! and a bounding sphere to judge its size on screen; an object's surfaces
 //! are grouped into small clusters of neighbours with a box each, so a
 //! frame skips whole clusters that are off the view, too small, or hidden
-//! already. Built once per scene, on all cores.
+//! already. The faces of an object's proxies ([`super::proxies`]) are
+//! clusters of their own, drawn only from outside the object's box. Built
+//! once per scene, on all cores.
 
 use std::ops::Range;
 
@@ -13,6 +15,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
+use super::proxies::Proxies;
 use crate::cull::occluder::{PLANARITY_ULPS, object_polygons};
 use crate::geom::{Aabb, Plane};
 use crate::scene::{Object, Scene};
@@ -37,6 +40,9 @@ pub struct Cluster {
     pub bounds: Aabb,
     /// The radius of the largest.
     pub largest: f64,
+    /// Its surfaces are faces of proxies inside the object
+    /// ([`super::proxies`]), normals out: drawn only from outside its box.
+    pub inner: bool,
 }
 
 /// Most surfaces in a cluster.
@@ -68,6 +74,17 @@ fn thickness(corners: &[DVec3]) -> f64 {
     2.0 * PLANARITY_ULPS * f32::EPSILON as f64 * size
 }
 
+/// The area of the convex polygon `corners`.
+fn area(corners: &[DVec3]) -> f64 {
+    let a = corners[0];
+    let twice: DVec3 = corners
+        .windows(2)
+        .skip(1)
+        .map(|w| (w[0] - a).cross(w[1] - a))
+        .sum();
+    0.5 * twice.length()
+}
+
 /// A sphere holding `corners`: their mean and farthest distance from it.
 fn sphere(corners: &[DVec3]) -> (DVec3, f64) {
     let centre = corners.iter().sum::<DVec3>() / corners.len() as f64;
@@ -93,10 +110,14 @@ pub enum Outside {
 
 /// [`Outside`] for `o`: every directed edge (its ends' exact positions)
 /// is matched by as many running the other way, and the sign of the
-/// enclosed volume tells which way the winding turns.
-fn outside(scene: &Scene, o: &Object) -> Outside {
+/// enclosed volume tells which way the winding turns. Also whether `o`'s
+/// opaque triangles close up at all, however wound: every edge shared by
+/// an even number of them (then crossing them an odd number of times is
+/// what being inside means, which is all [`super::proxies`] needs).
+pub(super) fn outside(scene: &Scene, o: &Object) -> (Outside, bool) {
     let key = |v: Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()];
-    let mut balance: FxHashMap<([u32; 3], [u32; 3]), i32> = FxHashMap::default();
+    // Per undirected edge: its directed balance and how many use it.
+    let mut edges: FxHashMap<([u32; 3], [u32; 3]), (i32, u32)> = FxHashMap::default();
     let centre = o.bounds.center().as_dvec3();
     let mut volume = 0.0f64;
     for r in o.opaque_ranges() {
@@ -107,12 +128,17 @@ fn outside(scene: &Scene, o: &Object) -> Outside {
                 let (a, b) = (key(t[i]), key(t[(i + 1) % 3]));
                 if a != b {
                     let (e, d) = if a < b { ((a, b), 1) } else { ((b, a), -1) };
-                    *balance.entry(e).or_insert(0) += d;
+                    let entry = edges.entry(e).or_insert((0, 0));
+                    (entry.0, entry.1) = (entry.0 + d, entry.1 + 1);
                 }
             }
         }
     }
-    if o.triangle_count() == 0 || balance.values().any(|&d| d != 0) {
+    if o.triangle_count() == 0 {
+        return (Outside::Unknown, false);
+    }
+    let closed = edges.values().all(|&(_, n)| n % 2 == 0);
+    let side = if edges.values().any(|&(d, _)| d != 0) {
         Outside::Unknown
     } else if volume > 0.0 {
         Outside::Front
@@ -120,19 +146,50 @@ fn outside(scene: &Scene, o: &Object) -> Outside {
         Outside::Back
     } else {
         Outside::Unknown
-    }
+    };
+    (side, closed)
 }
 
 /// One object's polygons with their planes and spheres, split into
 /// clusters by halving along the longest axis of their centres.
 struct ObjectSurfaces {
-    polygons: Vec<(Vec<DVec3>, Plane, DVec3, f64)>,
-    /// Ranges of `polygons`, after it was reordered cluster by cluster.
-    clusters: Vec<Range<usize>>,
+    polygons: Vec<Polygon>,
+    /// Ranges of `polygons`, after it was reordered cluster by cluster,
+    /// and whether they are proxies' faces.
+    clusters: Vec<(Range<usize>, bool)>,
     outside: Outside,
 }
 
-fn split(polygons: &mut [(Vec<DVec3>, Plane, DVec3, f64)], at: usize, out: &mut Vec<Range<usize>>) {
+/// A polygon being built: corners, plane, centre and radius.
+type Polygon = (Vec<DVec3>, Plane, DVec3, f64);
+
+/// The faces of box `b`, normals out.
+fn faces(b: &Aabb) -> impl Iterator<Item = Polygon> + '_ {
+    let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+    (0..3).flat_map(move |axis| {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        [(lo, -1.0), (hi, 1.0)].into_iter().filter_map(move |(at, sign)| {
+            let corner = |a: f64, b: f64| {
+                let mut c = DVec3::ZERO;
+                (c[axis], c[u], c[v]) = (at[axis], a, b);
+                c
+            };
+            let corners = vec![
+                corner(lo[u], lo[v]),
+                corner(hi[u], lo[v]),
+                corner(hi[u], hi[v]),
+                corner(lo[u], hi[v]),
+            ];
+            let mut normal = DVec3::ZERO;
+            normal[axis] = sign;
+            let plane = Plane::from_point_normal(corners[0], normal)?;
+            let (centre, radius) = sphere(&corners);
+            Some((corners, plane, centre, radius))
+        })
+    })
+}
+
+fn split(polygons: &mut [Polygon], at: usize, out: &mut Vec<Range<usize>>) {
     if polygons.len() <= CLUSTER {
         // Largest first, so a frame stops at the first too small.
         polygons.sort_by(|a, b| b.3.total_cmp(&a.3));
@@ -153,12 +210,14 @@ fn split(polygons: &mut [(Vec<DVec3>, Plane, DVec3, f64)], at: usize, out: &mut 
 }
 
 impl Surfaces {
-    /// The surfaces of `scene`'s static objects.
-    pub fn build(scene: &Scene) -> Surfaces {
+    /// The surfaces of `scene`'s static objects, and the faces of their
+    /// `proxies`.
+    pub fn build(scene: &Scene, proxies: &Proxies) -> Surfaces {
         let per_object: Vec<ObjectSurfaces> = scene
             .objects()
             .par_iter()
-            .map(|o| {
+            .enumerate()
+            .map(|(id, o)| {
                 if !o.is_static() {
                     return ObjectSurfaces {
                         polygons: Vec::new(),
@@ -179,12 +238,32 @@ impl Surfaces {
                         Some((p.vertices, plane, centre, radius))
                     })
                     .collect();
-                let mut clusters = Vec::new();
-                split(&mut polygons, 0, &mut clusters);
+                let mut ranges = Vec::new();
+                split(&mut polygons, 0, &mut ranges);
+                let mut clusters: Vec<_> = ranges.into_iter().map(|r| (r, false)).collect();
+                // A proxy is worth its faces only where it is larger than
+                // the object's largest polygon, which hides as much already.
+                let own = polygons.iter().map(|p| area(&p.0)).fold(0.0, f64::max);
+                let mut faces: Vec<Polygon> = proxies
+                    .of(id)
+                    .iter()
+                    .filter(|b| {
+                        let e = b.extent().as_dvec3();
+                        (e.x * e.y).max(e.y * e.z).max(e.z * e.x) > own
+                    })
+                    .flat_map(faces)
+                    .collect();
+                let (at, mut ranges) = (polygons.len(), Vec::new());
+                if !faces.is_empty() {
+                    split(&mut faces, at, &mut ranges);
+                }
+                polygons.extend(faces);
+                clusters.extend(ranges.into_iter().map(|r| (r, true)));
+                let (outside, _) = outside(scene, o);
                 ObjectSurfaces {
                     polygons,
                     clusters,
-                    outside: outside(scene, o),
+                    outside,
                 }
             })
             .collect();
@@ -192,7 +271,7 @@ impl Surfaces {
         for object in per_object {
             out.outside.push(object.outside);
             let first = out.clusters.len() as u32;
-            for range in object.clusters {
+            for (range, inner) in object.clusters {
                 let start = out.surfaces.len() as u32;
                 let mut bounds = Aabb::EMPTY;
                 let mut largest = 0.0f64;
@@ -213,6 +292,7 @@ impl Surfaces {
                     surfaces: start..out.surfaces.len() as u32,
                     bounds,
                     largest,
+                    inner,
                 });
             }
             out.by_object.push(first..out.clusters.len() as u32);
