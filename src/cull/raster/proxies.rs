@@ -50,9 +50,28 @@ const PROXY_TRIANGLES: usize = 64;
 /// constant that changes what it finds.
 const BAKE_PARAMS: &str = "proxies-v1 resolution=512 voxels/triangle=512 max=2^25 side=3 smallest=1/16 triangles/box=64 boxes>=8 triangles>=64 margin=1e-6";
 
-/// Whether `o` may get proxies: static, and of enough triangles.
-fn candidate(o: &Object) -> bool {
-    o.is_static() && o.triangle_count() as usize >= PROXY_TRIANGLES
+/// Per object, whether it gets proxies: static, of enough opaque
+/// triangles, and closed.
+fn solids(scene: &Scene) -> Vec<bool> {
+    scene
+        .objects()
+        .par_iter()
+        .map(|o| {
+            o.is_static()
+                && o.triangle_count() as usize >= PROXY_TRIANGLES
+                && opaque_triangles(scene, o).len() >= PROXY_TRIANGLES
+                && outside(scene, o).1
+        })
+        .collect()
+}
+
+/// The opaque triangles of `o`.
+fn opaque_triangles(scene: &Scene, o: &Object) -> Vec<[Vec3; 3]> {
+    o.opaque_ranges()
+        .into_iter()
+        .flat_map(|r| &scene.triangles()[r.start as usize..r.end as usize])
+        .copied()
+        .collect()
 }
 
 /// The proxies of every object of a scene (none for most).
@@ -62,54 +81,42 @@ pub struct Proxies {
 }
 
 impl Proxies {
-    /// The proxies of `scene`'s closed static objects, on all cores.
-    pub fn build(scene: &Scene) -> Proxies {
+    /// The proxies of the objects `solid` marks, on all cores.
+    fn of_solids(scene: &Scene, solid: &[bool]) -> Proxies {
         let by_object = scene
             .objects()
             .par_iter()
-            .map(|o| {
-                if !candidate(o) {
+            .zip(solid)
+            .map(|(o, &solid)| {
+                if !solid {
                     return Vec::new();
                 }
-                let triangles: Vec<[Vec3; 3]> = o
-                    .opaque_ranges()
-                    .into_iter()
-                    .flat_map(|r| &scene.triangles()[r.start as usize..r.end as usize])
-                    .copied()
-                    .collect();
-                if triangles.len() < PROXY_TRIANGLES || !outside(scene, o).1 {
-                    return Vec::new();
-                }
-                inner_boxes(&triangles, &o.bounds)
+                inner_boxes(&opaque_triangles(scene, o), &o.bounds)
             })
             .collect();
         Proxies { by_object }
     }
 
     /// [`Proxies::build`], read from `cache` when an earlier run baked
-    /// them for this scene file, and baked there when not.
-    /// A scene with no object that could have proxies writes no file.
+    /// them for this scene file, and baked there when not. A scene with no
+    /// object that could have proxies writes no file.
     pub fn build_cached(scene: &Scene, cache: Option<&BakeCache>) -> Proxies {
-        if !scene.objects().iter().any(candidate) {
-            return Proxies {
-                by_object: vec![Vec::new(); scene.objects().len()],
-            };
-        }
+        let solid = solids(scene);
         match cache {
-            Some(cache) => {
+            Some(cache) if solid.contains(&true) => {
                 let objects = scene.objects().len();
                 cache
                     .load_or_build(
                         scene,
                         "proxies",
                         BAKE_PARAMS,
-                        || Proxies::build(scene),
+                        || Proxies::of_solids(scene, &solid),
                         Proxies::encode,
                         |bytes| Proxies::decode(bytes, objects),
                     )
                     .0
             }
-            None => Proxies::build(scene),
+            _ => Proxies::of_solids(scene, &solid),
         }
     }
 
