@@ -320,6 +320,36 @@ fn proxies_inside_a_skin_of_tiny_triangles_hide_what_it_hides() {
             }
         }
     }
+
+    // An eye just outside the skin whose near plane cuts into the wall,
+    // and a box inside the wall: truth sees into the wall through the cut,
+    // so no proxy may be drawn.
+    let mut b = SceneBuilder::new("cut");
+    b.begin_object("shell", None);
+    b.add_triangles(skin(lo, hi, 40), false);
+    b.add_triangles(skin(lo + 0.2, hi - 0.2, 40), false);
+    b.begin_object("in the wall", None);
+    b.add_triangles(
+        solid(Vec3::new(-0.3, -0.3, 1.84), Vec3::new(0.3, 0.3, 1.9)),
+        false,
+    );
+    let scene = Arc::new(b.finish());
+    let methods = SceneMethods::prepare(scene.clone());
+    let cam = Camera {
+        near: 0.12,
+        ..camera(DVec3::new(0.05, 0.02, 2.05), -DVec3::Z)
+    };
+    let truth = Truth::render(&scene, &cam).unwrap().visible();
+    assert!(truth.contains(&1), "{truth:?}");
+    for options in ["", "cell=1", "min_size=0"] {
+        let got = raster(&methods, cam, options);
+        for v in &truth {
+            assert!(
+                got.contains(v),
+                "{v} dropped with {options:?} through the cut"
+            );
+        }
+    }
 }
 
 /// Some closed boxes and walls at random (a few shared-plane and touching).

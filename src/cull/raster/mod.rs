@@ -306,7 +306,10 @@ impl RasterCulling {
         // Seen from outside its box, all of it beyond the near plane, a
         // closed object's faces turned away lie behind those turned
         // towards the eye, and its proxies behind its faces.
-        let outside = bounds.distance_to(eye) > 0.0 && screen.pixels_per_unit(bounds).is_finite();
+        // (Decided on the box's own corners, the near plane moved by the
+        // rounding slack, not on its rounded centre and extent.)
+        let outside =
+            bounds.distance_to(eye) > 0.0 && !matches!(screen.footprint(bounds), Footprint::Near);
         let away = match self.surfaces.outside(id) {
             Outside::Front if outside => -1.0,
             Outside::Back if outside => 1.0,

@@ -28,12 +28,13 @@
 //! only report a touch that is not there — and (b) the line along `x`
 //! through its centre crosses the triangles an odd number of times before
 //! it. Crossings are counted per row of voxel centres, in coordinates
-//! local to the object's box (differences of `f32` values, exact in
-//! `f64`); a row whose line passes within a tolerance of any triangle's
-//! edge (as seen along `x`) could be counted wrong, so it keeps no voxel,
-//! and neither does a row with an odd number of crossings. An untouched
-//! voxel is crossed by no triangle, so its centre's parity is its whole
-//! parity.
+//! local to the object's box (each vertex rounded once, the same for every
+//! triangle that shares it, so the mesh stays closed). A row whose line
+//! passes within a tolerance of any triangle's edge (as seen along `x`),
+//! or crosses an odd number of times, could be counted wrong: it is
+//! counted again along a line moved inside its voxels (an untouched voxel
+//! is crossed by no triangle, so every line through it gives it the same
+//! parity), and if that is unsure too it keeps no voxel.
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -97,14 +98,14 @@ impl Proxies {
         Proxies { by_object }
     }
 
-    /// [`Proxies::build`], read from `cache` when an earlier run baked
+    /// The proxies of `scene`'s closed static objects, read from `cache` when an earlier run baked
     /// them for this scene file, and baked there when not. A scene with no
     /// object that could have proxies writes no file.
     pub fn build_cached(scene: &Scene, cache: Option<&BakeCache>) -> Proxies {
         let solid = solids(scene);
         match cache {
             Some(cache) if solid.contains(&true) => {
-                let objects = scene.objects().len();
+                let bounds: Vec<Aabb> = scene.objects().iter().map(|o| o.bounds).collect();
                 cache
                     .load_or_build(
                         scene,
@@ -112,7 +113,7 @@ impl Proxies {
                         BAKE_PARAMS,
                         || Proxies::of_solids(scene, &solid),
                         Proxies::encode,
-                        |bytes| Proxies::decode(bytes, objects),
+                        |bytes| Proxies::decode(bytes, &solid, &bounds),
                     )
                     .0
             }
@@ -148,7 +149,11 @@ impl Proxies {
 
     /// A payload read back, for a scene of `objects` objects; an error
     /// names what does not fit (the cache then rebuilds).
-    pub fn decode(bytes: &[u8], objects: usize) -> Result<Proxies, String> {
+    pub fn decode(bytes: &[u8], solid: &[bool], bounds: &[Aabb]) -> Result<Proxies, String> {
+        if bytes.len() % 4 != 0 {
+            return Err("proxies: not a whole number of words".into());
+        }
+        let objects = solid.len();
         let mut words = bytes
             .chunks(4)
             .map(|c| <[u8; 4]>::try_from(c).map_err(|_| "proxies: truncated".to_string()));
@@ -158,8 +163,11 @@ impl Proxies {
             return Err(format!("proxies: {count} objects, the scene has {objects}"));
         }
         let mut by_object = Vec::with_capacity(count);
-        for _ in 0..count {
+        for (&solid, within) in solid.iter().zip(bounds) {
             let n = u32::from_le_bytes(next()?) as usize;
+            if n > 0 && !solid {
+                return Err("proxies: boxes for an object that does not close up".into());
+            }
             let mut boxes = Vec::with_capacity(n.min(1 << 20));
             for _ in 0..n {
                 let mut v = [0f32; 6];
@@ -169,6 +177,9 @@ impl Proxies {
                 let b = Aabb::new(Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]));
                 if !(b.min.is_finite() && b.max.is_finite() && b.min.cmplt(b.max).all()) {
                     return Err("proxies: a box that is not one".into());
+                }
+                if !(b.min.cmpgt(within.min).all() && b.max.cmplt(within.max).all()) {
+                    return Err("proxies: a box not inside its object's".into());
                 }
                 boxes.push(b);
             }
@@ -200,9 +211,13 @@ const MIN_SIDE: usize = 3;
 /// are left out: they hide little for their cost.
 const SMALLEST: f32 = 1.0 / 16.0;
 
-/// Boxes kept: one per this many triangles, or `MOST_BOXES` if more.
+/// Boxes kept: one per this many triangles, and at least `LEAST_BOXES`.
 const TRIANGLES_PER_BOX: usize = 64;
-const MOST_BOXES: usize = 8;
+const LEAST_BOXES: usize = 8;
+
+/// Where a row is counted again when its line passes too near an edge, in
+/// voxels from their centres (inside the voxels, off their diagonals).
+const ROW_MOVES: [(f64, f64); 2] = [(0.1234, 0.2718), (-0.3141, 0.1618)];
 
 /// The voxel touches a triangle.
 const TOUCHED: u8 = 1;
@@ -216,7 +231,7 @@ const TAKEN: u8 = 4;
 /// corners `f32` values; largest first.
 pub fn inner_boxes(triangles: &[[Vec3; 3]], bounds: &Aabb) -> Vec<Aabb> {
     let origin = bounds.min.as_dvec3();
-    let extent = (bounds.max - bounds.min).as_dvec3();
+    let extent = bounds.max.as_dvec3() - origin;
     let longest = extent.max_element();
     if triangles.is_empty() || !(longest > 0.0 && longest.is_finite()) {
         return Vec::new();
@@ -280,9 +295,34 @@ pub fn inner_boxes(triangles: &[[Vec3; 3]], bounds: &Aabb) -> Vec<Aabb> {
                     }
                 }
             }
+            // A row that could be counted wrong is counted again along a
+            // line moved inside its voxels (any line through an untouched
+            // voxel gives it the same parity), twice at most.
+            let along = |y: f64, z: f64| -> Option<Vec<f64>> {
+                let mut row = Vec::new();
+                for &t in members {
+                    let t = &local[t as usize];
+                    let (lo, hi) = span(t);
+                    if lo.z <= z && z <= hi.z && lo.y <= y && y <= hi.y {
+                        match crossing(t, y, z, tolerance) {
+                            Crossing::None => {}
+                            Crossing::At(x) => row.push(x),
+                            Crossing::Unsure => return None,
+                        }
+                    }
+                }
+                (row.len() % 2 == 0).then_some(row)
+            };
             for (j, row) in crossings.iter_mut().enumerate() {
                 if unsure[j] || row.len() % 2 == 1 {
-                    continue;
+                    let yc = (j as f64 + 0.5) * size;
+                    let moved = ROW_MOVES
+                        .iter()
+                        .find_map(|(dy, dz)| along(yc + dy * size, zc + dz * size));
+                    match moved {
+                        Some(again) => *row = again,
+                        None => continue,
+                    }
                 }
                 row.sort_unstable_by(f64::total_cmp);
                 let mut before = 0;
@@ -365,7 +405,7 @@ pub fn inner_boxes(triangles: &[[Vec3; 3]], bounds: &Aabb) -> Vec<Aabb> {
     };
     boxes.sort_by(|a, b| face(b).total_cmp(&face(a)));
     let least = boxes.first().map_or(0.0, |b| face(b) * SMALLEST);
-    let most = (triangles.len() / TRIANGLES_PER_BOX).max(MOST_BOXES);
+    let most = (triangles.len() / TRIANGLES_PER_BOX).max(LEAST_BOXES);
     boxes.truncate(most);
     boxes.retain(|b| face(b) >= least);
     boxes
@@ -385,9 +425,12 @@ fn touches(t: &[DVec3; 3], centre: DVec3, half: f64) -> bool {
     if lo.cmpgt(DVec3::splat(half)).any() || hi.cmplt(DVec3::splat(-half)).any() {
         return false;
     }
-    // The triangle's plane.
+    // The triangle's normal (as rounded: every corner is projected, so any
+    // axis it comes out as separates only where it truly does).
     let n = (v[1] - v[0]).cross(v[2] - v[0]);
-    if n.dot(v[0]).abs() > half * n.abs().element_sum() {
+    let r = half * n.abs().element_sum();
+    let p = v.map(|p| n.dot(p));
+    if p[0].min(p[1]).min(p[2]) > r || p[0].max(p[1]).max(p[2]) < -r {
         return false;
     }
     // Each box axis crossed with each edge.
@@ -558,6 +601,7 @@ mod tests {
         let (lo, hi) = (Vec3::splat(-1.0), Vec3::splat(1.0));
         let out = inner_boxes(&cube(lo, hi, false), &Aabb::new(lo, hi));
         let inn = inner_boxes(&cube(lo, hi, true), &Aabb::new(lo, hi));
+        assert!(!out.is_empty());
         assert_eq!(out, inn);
     }
 
@@ -566,7 +610,9 @@ mod tests {
         let offset = Vec3::new(1e6, -1e6, 1e6);
         let (lo, hi) = (offset - 1.0, offset + 1.0);
         let triangles = subdivide(cube(lo, hi, false), 2);
-        for b in inner_boxes(&triangles, &Aabb::new(lo, hi)) {
+        let boxes = inner_boxes(&triangles, &Aabb::new(lo, hi));
+        assert!(!boxes.is_empty());
+        for b in boxes {
             assert!(b.min.cmpgt(lo).all() && b.max.cmplt(hi).all(), "{b:?}");
         }
     }
@@ -579,13 +625,20 @@ mod tests {
         };
         assert!(!p.of(1).is_empty());
         let bytes = p.encode();
-        assert_eq!(Proxies::decode(&bytes, 3), Ok(p.clone()));
-        assert!(Proxies::decode(&bytes, 2).is_err());
-        assert!(Proxies::decode(&bytes[..bytes.len() - 1], 3).is_err());
-        assert!(Proxies::decode(&[bytes.as_slice(), &[0; 4]].concat(), 3).is_err());
+        let solid = [false, true, false];
+        let within = [Aabb::EMPTY, bounds, Aabb::EMPTY];
+        assert_eq!(Proxies::decode(&bytes, &solid, &within), Ok(p.clone()));
+        assert!(Proxies::decode(&bytes, &solid[..2], &within[..2]).is_err());
+        assert!(Proxies::decode(&bytes[..bytes.len() - 1], &solid, &within).is_err());
+        assert!(Proxies::decode(&[bytes.as_slice(), &[0; 4]].concat(), &solid, &within).is_err());
+        assert!(Proxies::decode(&[bytes.as_slice(), &[0]].concat(), &solid, &within).is_err());
+        // Boxes for an object that is not closed, or outside its box: stale.
+        assert!(Proxies::decode(&bytes, &[false; 3], &within).is_err());
+        let smaller = [Aabb::EMPTY, Aabb::new(bounds.min + 0.5, bounds.max), Aabb::EMPTY];
+        assert!(Proxies::decode(&bytes, &solid, &smaller).is_err());
         let mut flipped = bytes.clone();
         flipped[12..16].copy_from_slice(&f32::NAN.to_le_bytes());
-        assert!(Proxies::decode(&flipped, 3).is_err());
+        assert!(Proxies::decode(&flipped, &solid, &within).is_err());
     }
 
     #[test]

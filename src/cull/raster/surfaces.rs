@@ -137,7 +137,7 @@ pub(super) fn outside(scene: &Scene, o: &Object) -> (Outside, bool) {
     if o.triangle_count() == 0 {
         return (Outside::Unknown, false);
     }
-    let closed = edges.values().all(|&(_, n)| n % 2 == 0);
+    let closed = !edges.is_empty() && edges.values().all(|&(_, n)| n % 2 == 0);
     let side = if edges.values().any(|&(d, _)| d != 0) {
         Outside::Unknown
     } else if volume > 0.0 {
