@@ -49,7 +49,7 @@ const PROXY_TRIANGLES: usize = 64;
 
 /// The bake cache's parameters for proxies: the method's version and every
 /// constant that changes what it finds.
-const BAKE_PARAMS: &str = "proxies-v1 resolution=512 voxels/triangle=512 max=2^25 side=3 smallest=1/16 triangles/box=64 boxes>=8 triangles>=64 margin=1e-6";
+const BAKE_PARAMS: &str = "proxies-v2 resolution=512 voxels/triangle=512 max=2^25 side=3 smallest=1/16 triangles/box=64 boxes>=8 triangles>=64 margin=1e-6";
 
 /// Per object, whether it gets proxies: static, of enough opaque
 /// triangles, and closed.
