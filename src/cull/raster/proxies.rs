@@ -60,7 +60,7 @@ fn solids(scene: &Scene) -> Vec<bool> {
         .map(|o| {
             o.is_static()
                 && o.triangle_count() as usize >= PROXY_TRIANGLES
-                && opaque_triangles(scene, o).len() >= PROXY_TRIANGLES
+                && o.opaque_ranges().iter().map(|r| r.len()).sum::<usize>() >= PROXY_TRIANGLES
                 && outside(scene, o).1
         })
         .collect()
@@ -98,9 +98,10 @@ impl Proxies {
         Proxies { by_object }
     }
 
-    /// The proxies of `scene`'s closed static objects, read from `cache` when an earlier run baked
-    /// them for this scene file, and baked there when not. A scene with no
-    /// object that could have proxies writes no file.
+    /// The proxies of `scene`'s closed static objects, read from `cache`
+    /// when an earlier run baked them for this scene file, and baked there
+    /// when not. A scene with no object that could have proxies writes no
+    /// file.
     pub fn build_cached(scene: &Scene, cache: Option<&BakeCache>) -> Proxies {
         let solid = solids(scene);
         match cache {
