@@ -41,10 +41,11 @@ pub struct DepthBuffer {
     written: Vec<(u32, u32)>,
     /// Per tile, the least value of its cells, where not stale.
     tiles: Vec<f32>,
-    /// Per tile, whether a cell changed since its least value was taken:
-    /// it is taken again when a test needs it, so drawing and testing can
-    /// interleave and only tested tiles cost a pass.
-    stale: Vec<bool>,
+    /// Per tile (a bit each, by tile index), whether a cell changed since
+    /// its least value was taken: it is taken again when a test needs it,
+    /// so drawing and testing can interleave and only tested tiles cost a
+    /// pass. Bits, so that a raised span marks its tiles in a word or two.
+    stale: Vec<u64>,
     kernel: Kernel,
 }
 
@@ -79,11 +80,11 @@ impl DepthBuffer {
             self.cells = vec![0.0; self.stride * rows];
             self.written = vec![(u32::MAX, 0); rows];
             self.tiles = vec![0.0; self.tiles_across * rows.div_ceil(TILE)];
-            self.stale = vec![false; self.tiles.len()];
+            self.stale = vec![0; self.tiles.len().div_ceil(64)];
             return;
         }
         self.tiles.fill(0.0);
-        self.stale.fill(false);
+        self.stale.fill(0);
         for (y, w) in self.written.iter_mut().enumerate() {
             if w.0 < w.1 {
                 self.cells[y * self.stride + w.0 as usize..y * self.stride + w.1 as usize]
@@ -99,18 +100,33 @@ impl DepthBuffer {
         debug_assert!(x0 <= x1 && x1 < self.cols && y < self.rows);
         let at = y * self.stride;
         self.kernel
-            .raise(&mut self.cells[at + x0..=at + x1], base, step);
+            .raise(&mut self.cells[at + x0..at + x1 + 1], base, step);
         let w = &mut self.written[y];
         *w = (w.0.min(x0 as u32), w.1.max(x1 as u32 + 1));
         let first = (y / TILE) * self.tiles_across;
-        self.stale[first + x0 / TILE..=first + x1 / TILE].fill(true);
+        self.mark_stale(first + x0 / TILE, first + x1 / TILE);
+    }
+
+    /// Marks tiles `a..=b` (by index) stale.
+    fn mark_stale(&mut self, a: usize, b: usize) {
+        let (wa, wb) = (a / 64, b / 64);
+        // Bits from `a`'s on, in its word; up to `b`'s, in its word.
+        let (from, upto) = (!0u64 << (a % 64), !0u64 >> (63 - b % 64));
+        if wa == wb {
+            self.stale[wa] |= from & upto;
+        } else {
+            self.stale[wa] |= from;
+            self.stale[wa + 1..wb].fill(!0);
+            self.stale[wb] |= upto;
+        }
     }
 
     /// The least value of tile `(tx, ty)`, taken again if stale.
     fn tile(&mut self, tx: usize, ty: usize) -> f32 {
         let t = ty * self.tiles_across + tx;
-        if self.stale[t] {
-            self.stale[t] = false;
+        let bit = 1u64 << (t % 64);
+        if self.stale[t / 64] & bit != 0 {
+            self.stale[t / 64] &= !bit;
             let (r0, r1) = (ty * TILE, ((ty + 1) * TILE).min(self.rows));
             let (c0, c1) = (tx * TILE, ((tx + 1) * TILE).min(self.cols));
             // A tile with a cell outside its rows' written columns holds a
@@ -135,38 +151,50 @@ impl DepthBuffer {
     /// Whether every cell of `rect` holds a value above `w` (an occluder
     /// nearer than inverse depth `w` covers all of it).
     pub fn hides(&mut self, rect: CellRect, w: f32) -> bool {
-        for ty in rect.y0 / TILE..=rect.y1 / TILE {
-            for tx in rect.x0 / TILE..=rect.x1 / TILE {
-                if self.tile(tx, ty) > w {
-                    continue;
-                }
-                // The tile's farthest cell is not nearer than `w`: look at
-                // the cells the rectangle has in it.
-                let (x0, x1) = (rect.x0.max(tx * TILE), rect.x1.min(tx * TILE + TILE - 1));
-                let (y0, y1) = (rect.y0.max(ty * TILE), rect.y1.min(ty * TILE + TILE - 1));
-                let whole = x0 == tx * TILE
-                    && x1 == (tx * TILE + TILE - 1).min(self.cols - 1)
-                    && y0 == ty * TILE
-                    && y1 == (ty * TILE + TILE - 1).min(self.rows - 1);
-                if whole {
+        // Plain loops: these run for every box and polygon tested, over a
+        // few tiles each, where an iterator's set-up costs as much as the
+        // tile's test.
+        let (tx0, tx1, ty1) = (rect.x0 / TILE, rect.x1 / TILE, rect.y1 / TILE);
+        let mut ty = rect.y0 / TILE;
+        while ty <= ty1 {
+            let mut tx = tx0;
+            while tx <= tx1 {
+                // (A NaN `w` is hidden nowhere.)
+                let hidden = self.tile(tx, ty) > w || self.cells_hide(rect, tx, ty, w);
+                if !hidden {
                     return false;
                 }
-                for y in y0..=y1 {
-                    let row = &self.cells[y * self.stride + x0..=y * self.stride + x1];
-                    if row.iter().any(|&c| c <= w) {
-                        return false;
-                    }
-                }
+                tx += 1;
             }
+            ty += 1;
         }
         true
+    }
+
+    /// Whether the cells `rect` has in tile `(tx, ty)` all hold a value
+    /// above `w`, for a tile whose farthest cell does not.
+    #[inline(never)]
+    fn cells_hide(&self, rect: CellRect, tx: usize, ty: usize, w: f32) -> bool {
+        let (left, top) = (tx * TILE, ty * TILE);
+        let (right, bottom) = (
+            (left + TILE - 1).min(self.cols - 1),
+            (top + TILE - 1).min(self.rows - 1),
+        );
+        let (x0, x1) = (rect.x0.max(left), rect.x1.min(right));
+        let (y0, y1) = (rect.y0.max(top), rect.y1.min(bottom));
+        if x0 == left && x1 == right && y0 == top && y1 == bottom {
+            return false; // all of the tile: its farthest cell is in it
+        }
+        (y0..y1 + 1).all(|y| {
+            let at = y * self.stride;
+            self.cells[at + x0..at + x1 + 1].iter().all(|&c| c > w)
+        })
     }
 
     /// Bytes held on the heap.
     pub fn heap_bytes(&self) -> usize {
         (self.cells.capacity() + self.tiles.capacity()) * 4
-            + self.stale.capacity()
-            + self.written.capacity() * 8
+            + (self.stale.capacity() + self.written.capacity()) * 8
     }
 }
 
@@ -193,6 +221,26 @@ mod tests {
             // A clear forgets it.
             b.reset(20, 11);
             assert!(!b.hides(rect(5, 5, 5, 5), 0.0001));
+        }
+    }
+
+    #[test]
+    fn a_raised_span_renews_every_tile_it_crosses() {
+        // 75 tiles a row: a span over tiles 60..=68 crosses a word of the
+        // stale bits; a tile not marked would keep its old least value.
+        for kernel in [Kernel::Scalar, Kernel::detect()] {
+            let mut b = DepthBuffer::new(kernel);
+            b.reset(600, 8);
+            for y in 0..8 {
+                b.raise_span(y, 0, 599, 1.0, 0.0);
+            }
+            assert!(b.hides(rect(0, 0, 599, 7), 0.5));
+            for y in 0..8 {
+                b.raise_span(y, 480, 551, 3.0, 0.0);
+            }
+            assert!(b.hides(rect(480, 0, 551, 7), 2.0));
+            assert!(!b.hides(rect(472, 0, 551, 7), 2.0));
+            assert!(!b.hides(rect(480, 0, 559, 7), 2.0));
         }
     }
 

@@ -45,8 +45,8 @@ const NEAR_SLACK: f64 = 1e-9;
 pub struct Scratch {
     poly: Vec<DVec3>,
     edges: Vec<(f64, f64, f64, f64)>,
-    left: Vec<(f64, f64)>,
-    right: Vec<(f64, f64)>,
+    left: Vec<(f64, f64, f64)>,
+    right: Vec<(f64, f64, f64)>,
     level: Vec<(f64, f64)>,
 }
 
@@ -252,10 +252,14 @@ impl Screen {
         // wholly on one side for level edges. Solving `A·x + B·y + C ≥ tol`
         // once instead of per row rounds differently by ~1e-16 of the
         // terms, under 1e-9 of the pixel slack in `tol` on any viewport.
+        // Each bound binds at one of the cell row's two pixel rows, known
+        // from its slope: kept as that row's offset from the top one, so
+        // a row costs no branch per edge.
         let (left, right, level) = (&mut scratch.left, &mut scratch.right, &mut scratch.level);
         left.clear();
         right.clear();
         level.clear();
+        let bottom = c - 1.0;
         for &(ea, eb, ec, tol) in edges {
             if ea == 0.0 {
                 level.push((eb, ec - tol));
@@ -267,9 +271,9 @@ impl Screen {
                 return false;
             }
             if ea > 0.0 {
-                left.push((p / c, q));
+                left.push((p / c, q, if q > 0.0 { bottom } else { 0.0 }));
             } else {
-                right.push(((p - (c - 1.0)) / c, q));
+                right.push(((p - (c - 1.0)) / c, q, if q < 0.0 { bottom } else { 0.0 }));
             }
         }
         // In f32, `base + k·step` rounds twice, each within half an ulp of
@@ -289,27 +293,30 @@ impl Screen {
         // counted as i64: converting an unsigned one costs several steps).
         let last_centre = self.height - 0.5;
         let mut y_top = (row_first * self.cell) as i64 as f64 + 0.5;
-        for row in row_first..=row_last {
+        for row in row_first..row_last + 1 {
             // The first and last pixel centres of the cell row.
             if row > row_first {
                 y_top += c;
             }
-            let y_bot = lesser(y_top + (c - 1.0), last_centre);
-            if level
-                .iter()
-                .any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0)
+            let y_bot = lesser(y_top + bottom, last_centre);
+            if !level.is_empty()
+                && level
+                    .iter()
+                    .any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0)
             {
                 continue;
             }
-            // Each bound is affine in y: the binding one of the two rows is
-            // known from its slope, and ⌈max⌉ = max⌈⌉.
+            // Each bound is affine in y, taken at its binding row (⌈max⌉ =
+            // max⌈⌉). In the screen's last cell row that row may lie below
+            // the last pixel row: the bound there is only tighter, and the
+            // cell is written only if the polygon covers more than it has.
             let mut first = 0.0f64;
-            for &(p, q) in left.iter() {
-                first = greater(first, p + q * if q > 0.0 { y_bot } else { y_top });
+            for &(p, q, at) in left.iter() {
+                first = greater(first, p + q * (y_top + at));
             }
             let mut last = last_col as f64;
-            for &(p, q) in right.iter() {
-                last = lesser(last, p + q * if q < 0.0 { y_bot } else { y_top });
+            for &(p, q, at) in right.iter() {
+                last = lesser(last, p + q * (y_top + at));
             }
             let (lo, hi) = (ceil_i64(first), floor_i64(last));
             if lo > hi {
