@@ -65,6 +65,11 @@ impl DepthBuffer {
         }
     }
 
+    /// The loops it runs.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
+    }
+
     /// Runs its loops with `kernel` from now on.
     pub fn set_kernel(&mut self, kernel: Kernel) {
         self.kernel = kernel;

@@ -1,8 +1,16 @@
-//! The two loops a depth buffer spends its time in, written twice: with
-//! AVX2 through `std::arch` where the CPU has it, and in plain Rust. Both
-//! do the same `f32` operations in the same order on every cell (a product
-//! then a sum, never fused; a maximum; a minimum), so they write the same
-//! bits, and a test holds them to it.
+//! The loops a depth buffer spends its time in, written twice: with AVX2
+//! through `std::arch` where the CPU has it, and in plain Rust. Both do the
+//! same floating-point operations in the same order on every cell or row
+//! (a product then a sum, never fused; a maximum; a minimum; a rounding to
+//! a whole number), so they give the same bits, and a test holds them to
+//! it.
+
+use crate::geom::{ceil_i64, floor_i64, greater, lesser};
+
+/// One edge of a polygon as a bound on a cell row's columns: `p + q·(y +
+/// at)` for the row whose top pixel centre is at `y` (see
+/// [`Kernel::spans`]).
+pub type Bound = (f64, f64, f64);
 
 /// Which implementation of the loops to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -35,6 +43,29 @@ impl Kernel {
         }
     }
 
+    /// The cells of consecutive cell rows inside a convex polygon: for row
+    /// `k` of `rows`, whose top pixel centre is at `y = y_top + k·cell`,
+    /// `(⌈max(0, maxₗ pₗ + qₗ·(y + atₗ))⌉, ⌊min(last_col, minᵣ pᵣ +
+    /// qᵣ·(y + atᵣ))⌋)` over the `left` and `right` bounds, as whole
+    /// numbers (the first above the last where no cell is inside; either
+    /// may then be clamped to one past the row's ends). The bounds must be
+    /// finite, `y_top` and `cell` whole numbers and a half.
+    pub fn spans(
+        self,
+        left: &[Bound],
+        right: &[Bound],
+        (y_top, cell): (f64, f64),
+        last_col: f64,
+        rows: &mut [(f64, f64)],
+    ) {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `raise`.
+            Kernel::Avx2 => unsafe { avx2::spans(left, right, (y_top, cell), last_col, rows) },
+            _ => spans_scalar(left, right, (y_top, cell), last_col, rows),
+        }
+    }
+
     /// The least of `rows` runs of `width` cells, `stride` apart, starting
     /// at `cells[0]`: a tile's farthest depth.
     pub fn least(self, cells: &[f32], stride: usize, width: usize, rows: usize) -> f32 {
@@ -54,6 +85,32 @@ fn raise_scalar(cells: &mut [f32], base: f32, step: f32) {
         if v > *c {
             *c = v;
         }
+    }
+}
+
+/// `spans`, one row and one edge at a time.
+fn spans_scalar(
+    left: &[Bound],
+    right: &[Bound],
+    (y_top, cell): (f64, f64),
+    last_col: f64,
+    rows: &mut [(f64, f64)],
+) {
+    for (k, out) in rows.iter_mut().enumerate() {
+        // Whole numbers and a half: exact, however summed.
+        let y = y_top + k as f64 * cell;
+        let mut first = 0.0f64;
+        for &(p, q, at) in left {
+            first = greater(first, p + q * (y + at));
+        }
+        let mut last = last_col;
+        for &(p, q, at) in right {
+            last = lesser(last, p + q * (y + at));
+        }
+        // Clamped to one past the ends, so that the rounding is exact and
+        // an empty row stays empty.
+        let (first, last) = (lesser(first, last_col + 1.0), greater(last, -1.0));
+        *out = (ceil_i64(first) as f64, floor_i64(last) as f64);
     }
 }
 
@@ -112,6 +169,58 @@ mod avx2 {
     }
 
     /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn spans(
+        left: &[super::Bound],
+        right: &[super::Bound],
+        (y_top, cell): (f64, f64),
+        last_col: f64,
+        rows: &mut [(f64, f64)],
+    ) {
+        // Four rows at a time, each lane the scalar loop's operations on
+        // its row: `y` is exact, then (y + at), q·, p + in that order.
+        let steps = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0);
+        let vcell = _mm256_set1_pd(cell);
+        let (zero, vlast) = (_mm256_setzero_pd(), _mm256_set1_pd(last_col));
+        let (past, before) = (_mm256_set1_pd(last_col + 1.0), _mm256_set1_pd(-1.0));
+        let mut k = 0;
+        while k < rows.len() {
+            let ks = _mm256_add_pd(_mm256_set1_pd(k as f64), steps);
+            let y = _mm256_add_pd(_mm256_set1_pd(y_top), _mm256_mul_pd(ks, vcell));
+            let bound = |&(p, q, at): &super::Bound| {
+                let at = _mm256_add_pd(y, _mm256_set1_pd(at));
+                _mm256_add_pd(_mm256_set1_pd(p), _mm256_mul_pd(_mm256_set1_pd(q), at))
+            };
+            // `max(v, first)` is `first` on a tie, as `greater` is.
+            let mut first = zero;
+            for b in left {
+                first = _mm256_max_pd(bound(b), first);
+            }
+            let mut last = vlast;
+            for b in right {
+                last = _mm256_min_pd(bound(b), last);
+            }
+            // The clamps: `lesser(first, past)` keeps `first` unless `past`
+            // is smaller, as `min(past, first)` does.
+            // Plus zero: a −0 rounded stays −0 here, where the scalar
+            // loop's integers give +0.
+            let first = _mm256_add_pd(_mm256_ceil_pd(_mm256_min_pd(past, first)), zero);
+            let last = _mm256_add_pd(_mm256_floor_pd(_mm256_max_pd(before, last)), zero);
+            let (mut lo, mut hi) = ([0f64; 4], [0f64; 4]);
+            // SAFETY: four doubles each.
+            unsafe {
+                _mm256_storeu_pd(lo.as_mut_ptr(), first);
+                _mm256_storeu_pd(hi.as_mut_ptr(), last);
+            }
+            for (lane, out) in rows[k..].iter_mut().take(4).enumerate() {
+                *out = (lo[lane], hi[lane]);
+            }
+            k += 4;
+        }
+    }
+
+    /// # Safety
     /// The CPU must have AVX2, and `cells` hold `(rows - 1) * stride + 8`
     /// values.
     #[target_feature(enable = "avx2")]
@@ -136,7 +245,59 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    /// Edge bounds as `Screen::draw` makes them, starting around column
+    /// `from`: mostly slopes of a few cells a row, some nearly vertical or
+    /// level, taken at either pixel row of a cell; and a bound at −0.
+    fn bounds(from: f64) -> impl Strategy<Value = Vec<Bound>> {
+        let slope = prop_oneof![
+            6 => -3.0f64..3.0,
+            1 => -1e-3f64..1e-3,
+            1 => -1e12f64..1e12,
+        ];
+        let bound = (
+            from - 200.0..from + 200.0,
+            slope,
+            prop_oneof![Just(0.0), Just(1.0), Just(3.0)],
+        );
+        let level = Just((-0.0, -0.0, 0.0));
+        proptest::collection::vec(prop_oneof![12 => bound, 1 => level], 0..6)
+    }
+
     proptest! {
+        /// Both kernels find the same spans, bit for bit, on any number of
+        /// rows (the vector loop's last lanes past the end included).
+        #[test]
+        fn spans_agree(
+            left in bounds(0.0),
+            right in bounds(300.0),
+            first_row in 0u32..100,
+            cell in 1u32..5,
+            cols in 1u32..600,
+            count in 1usize..40,
+        ) {
+            let (c, y_top) = (cell as f64, (first_row * cell) as f64 + 0.5);
+            let last_col = (cols - 1) as f64;
+            let (mut a, mut b) = (vec![(0.0, 0.0); count], vec![(1.0, 1.0); count]);
+            Kernel::Scalar.spans(&left, &right, (y_top, c), last_col, &mut a);
+            Kernel::detect().spans(&left, &right, (y_top, c), last_col, &mut b);
+            let bits = |v: &[(f64, f64)]| v.iter().map(|p| (p.0.to_bits(), p.1.to_bits())).collect::<Vec<_>>();
+            prop_assert_eq!(bits(&a), bits(&b));
+            for &(lo, hi) in &a {
+                prop_assert!(lo.fract() == 0.0 && hi.fract() == 0.0);
+                prop_assert!(lo >= 0.0 && hi <= last_col || lo > hi);
+            }
+            // Against the bounds themselves, at each row's binding row.
+            for (k, &(lo, hi)) in a.iter().enumerate().filter(|(_, s)| s.0 <= s.1) {
+                let y = y_top + k as f64 * c;
+                for &(p, q, at) in &left {
+                    prop_assert!(lo >= p + q * (y + at));
+                }
+                for &(p, q, at) in &right {
+                    prop_assert!(hi <= p + q * (y + at));
+                }
+            }
+        }
+
         /// Both kernels write the same bits and find the same least value.
         #[test]
         fn kernels_agree(

@@ -13,6 +13,7 @@
 use glam::DVec3;
 
 use super::buffer::{CellRect, DepthBuffer};
+use super::kernel::Bound;
 use crate::cull::View;
 use crate::geom::{Aabb, Plane, ceil_i64, floor_i64, greater, lesser};
 
@@ -45,9 +46,10 @@ const NEAR_SLACK: f64 = 1e-9;
 pub struct Scratch {
     poly: Vec<DVec3>,
     edges: Vec<(f64, f64, f64, f64)>,
-    left: Vec<(f64, f64, f64)>,
-    right: Vec<(f64, f64, f64)>,
+    left: Vec<Bound>,
+    right: Vec<Bound>,
     level: Vec<(f64, f64)>,
+    spans: Vec<(f64, f64)>,
 }
 
 /// What a box covers on screen.
@@ -288,16 +290,27 @@ impl Screen {
                 + f32::MIN_POSITIVE as f64;
         let row_first = floor_i64(y_lo / c).max(0) as usize;
         let row_last = floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize;
-        let last_col = self.cols as i64 - 1;
         // Pixel rows and columns are whole numbers, exact in f64 (and
         // counted as i64: converting an unsigned one costs several steps).
         let last_centre = self.height - 0.5;
-        let mut y_top = (row_first * self.cell) as i64 as f64 + 0.5;
-        for row in row_first..row_last + 1 {
-            // The first and last pixel centres of the cell row.
-            if row > row_first {
-                y_top += c;
+        let y_first = (row_first * self.cell) as i64 as f64 + 0.5;
+        // Each bound is affine in y, taken at its binding row (⌈max⌉ =
+        // max⌈⌉). In the screen's last cell row that row may lie below the
+        // last pixel row: the bound there is only tighter, and the cell is
+        // written only if the polygon covers more than it has.
+        let spans = &mut scratch.spans;
+        spans.clear();
+        spans.resize(row_last + 1 - row_first, (0.0, 0.0));
+        let last_col = (self.cols - 1) as i64 as f64;
+        buffer
+            .kernel()
+            .spans(left, right, (y_first, c), last_col, spans);
+        for (k, &(lo, hi)) in spans.iter().enumerate() {
+            if lo > hi {
+                continue;
             }
+            // The first and last pixel centres of the cell row.
+            let y_top = y_first + (k as i64 as f64) * c;
             let y_bot = lesser(y_top + bottom, last_centre);
             if !level.is_empty()
                 && level
@@ -306,28 +319,13 @@ impl Screen {
             {
                 continue;
             }
-            // Each bound is affine in y, taken at its binding row (⌈max⌉ =
-            // max⌈⌉). In the screen's last cell row that row may lie below
-            // the last pixel row: the bound there is only tighter, and the
-            // cell is written only if the polygon covers more than it has.
-            let mut first = 0.0f64;
-            for &(p, q, at) in left.iter() {
-                first = greater(first, p + q * (y_top + at));
-            }
-            let mut last = last_col as f64;
-            for &(p, q, at) in right.iter() {
-                last = lesser(last, p + q * (y_top + at));
-            }
-            let (lo, hi) = (ceil_i64(first), floor_i64(last));
-            if lo > hi {
-                continue;
-            }
             // The farthest of the cell's corner centres: the least w.
-            let x_first = (lo as f64) * c + 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
-            let (lo, hi) = (lo as usize, hi as usize);
+            let x_first = lo * c + 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
             let y = if wb < 0.0 { y_bot } else { y_top };
             let base = wa * x_first + wb * y + wc - w_round - f32_margin;
-            buffer.raise_span(row, lo, hi, base as f32, step32);
+            // Whole numbers within the row (`lo ≤ hi` and both clamped).
+            let (lo, hi) = (lo as i64 as usize, hi as i64 as usize);
+            buffer.raise_span(row_first + k, lo, hi, base as f32, step32);
         }
         true
     }
