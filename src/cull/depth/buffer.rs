@@ -114,9 +114,7 @@ impl DepthBuffer {
 
     /// Marks tiles `a..=b` (by index) stale.
     fn mark_stale(&mut self, a: usize, b: usize) {
-        let (wa, wb) = (a / 64, b / 64);
-        // Bits from `a`'s on, in its word; up to `b`'s, in its word.
-        let (from, upto) = (!0u64 << (a % 64), !0u64 >> (63 - b % 64));
+        let ((wa, from), (wb, upto)) = bit_range(a, b);
         if wa == wb {
             self.stale[wa] |= from & upto;
         } else {
@@ -126,31 +124,50 @@ impl DepthBuffer {
         }
     }
 
+    /// Whether any of tiles `a..=b` (by index) is stale.
+    fn any_stale(&self, a: usize, b: usize) -> bool {
+        let ((wa, from), (wb, upto)) = bit_range(a, b);
+        if wa == wb {
+            self.stale[wa] & from & upto != 0
+        } else {
+            self.stale[wa] & from != 0
+                || self.stale[wa + 1..wb].iter().any(|&s| s != 0)
+                || self.stale[wb] & upto != 0
+        }
+    }
+
     /// The least value of tile `(tx, ty)`, taken again if stale.
     fn tile(&mut self, tx: usize, ty: usize) -> f32 {
         let t = ty * self.tiles_across + tx;
         let bit = 1u64 << (t % 64);
         if self.stale[t / 64] & bit != 0 {
             self.stale[t / 64] &= !bit;
-            let (r0, r1) = (ty * TILE, ((ty + 1) * TILE).min(self.rows));
-            let (c0, c1) = (tx * TILE, ((tx + 1) * TILE).min(self.cols));
-            // A tile with a cell outside its rows' written columns holds a
-            // zero there: no need to read it.
-            let all_written = self.written[r0..r1]
-                .iter()
-                .all(|&(lo, hi)| lo as usize <= c0 && hi as usize >= c1);
-            self.tiles[t] = if all_written {
-                self.kernel.least(
-                    &self.cells[r0 * self.stride + c0..],
-                    self.stride,
-                    c1 - c0,
-                    r1 - r0,
-                )
-            } else {
-                0.0
-            };
+            self.tiles[t] = self.least(tx, ty);
         }
         self.tiles[t]
+    }
+
+    /// The least value of tile `(tx, ty)`'s cells. Out of line: the
+    /// hidden-test's loop stays small without it.
+    #[inline(never)]
+    fn least(&self, tx: usize, ty: usize) -> f32 {
+        let (r0, r1) = (ty * TILE, ((ty + 1) * TILE).min(self.rows));
+        let (c0, c1) = (tx * TILE, ((tx + 1) * TILE).min(self.cols));
+        // A tile with a cell outside its rows' written columns holds a
+        // zero there: no need to read it.
+        let all_written = self.written[r0..r1]
+            .iter()
+            .all(|&(lo, hi)| lo as usize <= c0 && hi as usize >= c1);
+        if all_written {
+            self.kernel.least(
+                &self.cells[r0 * self.stride + c0..],
+                self.stride,
+                c1 - c0,
+                r1 - r0,
+            )
+        } else {
+            0.0
+        }
     }
 
     /// Whether every cell of `rect` holds a value above `w` (an occluder
@@ -162,6 +179,17 @@ impl DepthBuffer {
         let (tx0, tx1, ty1) = (rect.x0 / TILE, rect.x1 / TILE, rect.y1 / TILE);
         let mut ty = rect.y0 / TILE;
         while ty <= ty1 {
+            let at = ty * self.tiles_across;
+            // A row of tiles none of which is stale: their values compared
+            // all at once, without a branch per tile (a NaN `w` fails).
+            if !self.any_stale(at + tx0, at + tx1)
+                && self.tiles[at + tx0..at + tx1 + 1]
+                    .iter()
+                    .fold(true, |all, &t| all & (t > w))
+            {
+                ty += 1;
+                continue;
+            }
             let mut tx = tx0;
             while tx <= tx1 {
                 // (A NaN `w` is hidden nowhere.)
@@ -190,10 +218,12 @@ impl DepthBuffer {
         if x0 == left && x1 == right && y0 == top && y1 == bottom {
             return false; // all of the tile: its farthest cell is in it
         }
-        (y0..y1 + 1).all(|y| {
-            let at = y * self.stride;
-            self.cells[at + x0..at + x1 + 1].iter().all(|&c| c > w)
-        })
+        // Rows start at whole tiles (`stride` is a multiple of TILE), so
+        // each of the tile's rows has TILE cells in memory to read.
+        let at = y0 * self.stride + left;
+        let cells = &self.cells[at..at + (y1 - y0) * self.stride + TILE];
+        self.kernel
+            .above(cells, self.stride, y1 - y0 + 1, (x0 - left, x1 - left), w)
     }
 
     /// Bytes held on the heap.
@@ -201,6 +231,15 @@ impl DepthBuffer {
         (self.cells.capacity() + self.tiles.capacity()) * 4
             + (self.stale.capacity() + self.written.capacity()) * 8
     }
+}
+
+/// Bits `a..=b` of a bit set in words: `a`'s word and the mask of the
+/// bits from `a` on in it, `b`'s word and the mask of the bits up to `b`.
+fn bit_range(a: usize, b: usize) -> ((usize, u64), (usize, u64)) {
+    (
+        (a / 64, !0u64 << (a % 64)),
+        (b / 64, !0u64 >> (63 - b % 64)),
+    )
 }
 
 #[cfg(test)]

@@ -66,6 +66,30 @@ impl Kernel {
         }
     }
 
+    /// Whether cells `x0..=x1` (below 8) of `rows` runs of 8 cells,
+    /// `stride` apart from `cells[0]`, all hold a value above `w` (none
+    /// does for a NaN `w`): a tile's part of a box.
+    pub fn above(
+        self,
+        cells: &[f32],
+        stride: usize,
+        rows: usize,
+        (x0, x1): (usize, usize),
+        w: f32,
+    ) -> bool {
+        assert!(x0 <= x1 && x1 < 8 && rows >= 1 && cells.len() >= (rows - 1) * stride + 8);
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `raise`; the assertion bounds the reads.
+            Kernel::Avx2 => unsafe { avx2::above(cells, stride, rows, (x0, x1), w) },
+            _ => (0..rows).all(|r| {
+                cells[r * stride + x0..r * stride + x1 + 1]
+                    .iter()
+                    .all(|&c| c > w)
+            }),
+        }
+    }
+
     /// The least of `rows` runs of `width` cells, `stride` apart, starting
     /// at `cells[0]`: a tile's farthest depth.
     pub fn least(self, cells: &[f32], stride: usize, width: usize, rows: usize) -> f32 {
@@ -221,6 +245,31 @@ mod avx2 {
     }
 
     /// # Safety
+    /// The CPU must have AVX2, `x1 < 8`, and `cells` hold `(rows - 1) *
+    /// stride + 8` values.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn above(
+        cells: &[f32],
+        stride: usize,
+        rows: usize,
+        (x0, x1): (usize, usize),
+        w: f32,
+    ) -> bool {
+        let wanted = ((1u32 << (x1 + 1)) - 1) & !((1u32 << x0) - 1);
+        let vw = _mm256_set1_ps(w);
+        for r in 0..rows {
+            // SAFETY: the caller's bound on `cells`.
+            let v = unsafe { _mm256_loadu_ps(cells.as_ptr().add(r * stride)) };
+            // Ordered: a NaN compares false, as `c > w` does.
+            let above = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(v, vw)) as u32;
+            if above & wanted != wanted {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// # Safety
     /// The CPU must have AVX2, and `cells` hold `(rows - 1) * stride + 8`
     /// values.
     #[target_feature(enable = "avx2")]
@@ -296,6 +345,21 @@ mod tests {
                     prop_assert!(hi <= p + q * (y + at));
                 }
             }
+        }
+
+        /// Both kernels say the same of a tile's part against a depth.
+        #[test]
+        fn above_agrees(
+            cells in proptest::collection::vec(prop_oneof![Just(0.0f32), Just(1.0), 0.0f32..2.0], 8 * 12),
+            rows in 1usize..8,
+            x0 in 0usize..8,
+            width in 0usize..8,
+            w in prop_oneof![Just(1.0f32), 0.0f32..2.0, Just(f32::NAN)],
+        ) {
+            let x1 = (x0 + width).min(7);
+            let plain = (0..rows).all(|r| (x0..=x1).all(|x| cells[r * 12 + x] > w));
+            prop_assert_eq!(Kernel::Scalar.above(&cells, 12, rows, (x0, x1), w), plain);
+            prop_assert_eq!(Kernel::detect().above(&cells, 12, rows, (x0, x1), w), plain);
         }
 
         /// Both kernels write the same bits and find the same least value.
