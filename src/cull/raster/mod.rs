@@ -344,7 +344,9 @@ impl RasterCulling {
             // Drawing fewer surfaces only hides less: skip clusters and
             // surfaces hidden already, too small or off the view, and
             // back faces of closed objects.
-            if canvas.visibility(screen, &cluster.bounds) == Visibility::Invisible {
+            // Whole, not halved: a cluster not hidden whole has each of its
+            // polygons tested on its own anyway.
+            if canvas.hidden(screen, &cluster.bounds, 0) {
                 continue;
             }
             // Proxies' normals point out of their boxes.
