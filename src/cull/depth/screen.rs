@@ -298,9 +298,12 @@ impl Screen {
         // max⌈⌉). In the screen's last cell row that row may lie below the
         // last pixel row: the bound there is only tighter, and the cell is
         // written only if the polygon covers more than it has.
-        let spans = &mut scratch.spans;
-        spans.clear();
-        spans.resize(row_last + 1 - row_first, (0.0, 0.0));
+        // Grown only: the kernel writes every span it is given.
+        let count = row_last + 1 - row_first;
+        if scratch.spans.len() < count {
+            scratch.spans.resize(count, (0.0, 0.0));
+        }
+        let spans = &mut scratch.spans[..count];
         let last_col = (self.cols - 1) as i64 as f64;
         buffer
             .kernel()
