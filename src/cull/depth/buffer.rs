@@ -10,7 +10,7 @@
 //! real inverse depth (the occluder is at least that near); a box is
 //! hidden when its own upper bound is below every cell it covers.
 
-use super::kernel::Kernel;
+use super::kernel::{Kernel, Raise, ScalarRaise};
 
 /// Cells per tile side.
 pub const TILE: usize = 8;
@@ -102,17 +102,73 @@ impl DepthBuffer {
     /// Raises cells `x0..=x1` of row `y` to `base + (x − x0)·step` where
     /// that is larger.
     pub fn raise_span(&mut self, y: usize, x0: usize, x1: usize, base: f32, step: f32) {
-        debug_assert!(x0 <= x1 && x1 < self.cols && y < self.rows);
-        let at = y * self.stride;
-        self.kernel
-            .raise(&mut self.cells[at + x0..at + x1 + 1], base, step);
-        let w = &mut self.written[y];
-        *w = (w.0.min(x0 as u32), w.1.max(x1 as u32 + 1));
-        let first = (y / TILE) * self.tiles_across;
-        self.mark_stale(first + x0 / TILE, first + x1 / TILE);
+        self.raise_rows(y, &[(x0 as f64, x1 as f64)], |_, _| base, step);
+    }
+
+    /// Raises row `first_row + k`, for each `spans[k] = (lo, hi)` with
+    /// `lo ≤ hi` (whole numbers within the row), from column `lo` to `hi`
+    /// to `base(k, lo) + (x − lo)·step` where that is larger: a polygon's
+    /// rows in one call, its loop compiled once per kernel with the
+    /// kernel's raise inside it rather than called per row.
+    pub fn raise_rows(
+        &mut self,
+        first_row: usize,
+        spans: &[(f64, f64)],
+        base: impl Fn(usize, f64) -> f32,
+        step: f32,
+    ) {
+        match self.kernel {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Avx2` is only made on a CPU that has AVX2.
+            Kernel::Avx2 => unsafe { self.raise_rows_avx2(first_row, spans, base, step) },
+            // SAFETY: plain Rust runs anywhere.
+            _ => unsafe { self.raise_rows_with::<ScalarRaise>(first_row, spans, base, step) },
+        }
+    }
+
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn raise_rows_avx2(
+        &mut self,
+        first_row: usize,
+        spans: &[(f64, f64)],
+        base: impl Fn(usize, f64) -> f32,
+        step: f32,
+    ) {
+        // SAFETY: the caller's.
+        unsafe { self.raise_rows_with::<super::kernel::Avx2Raise>(first_row, spans, base, step) }
+    }
+
+    /// # Safety
+    /// The CPU must have `R`'s instructions.
+    #[inline(always)]
+    unsafe fn raise_rows_with<R: Raise>(
+        &mut self,
+        first_row: usize,
+        spans: &[(f64, f64)],
+        base: impl Fn(usize, f64) -> f32,
+        step: f32,
+    ) {
+        for (k, &(lo, hi)) in spans.iter().enumerate() {
+            if lo > hi {
+                continue;
+            }
+            let (y, x0, x1) = (first_row + k, lo as i64 as usize, hi as i64 as usize);
+            debug_assert!(x0 <= x1 && x1 < self.cols && y < self.rows);
+            let at = y * self.stride;
+            // SAFETY: the caller's.
+            unsafe { R::raise(&mut self.cells[at + x0..at + x1 + 1], base(k, lo), step) };
+            let w = &mut self.written[y];
+            *w = (w.0.min(x0 as u32), w.1.max(x1 as u32 + 1));
+            let first = (y / TILE) * self.tiles_across;
+            self.mark_stale(first + x0 / TILE, first + x1 / TILE);
+        }
     }
 
     /// Marks tiles `a..=b` (by index) stale.
+    #[inline(always)]
     fn mark_stale(&mut self, a: usize, b: usize) {
         let ((wa, from), (wb, upto)) = bit_range(a, b);
         if wa == wb {

@@ -102,6 +102,39 @@ impl Kernel {
     }
 }
 
+/// A kernel's `raise` as a type, so that a loop around it can be compiled
+/// once per kernel with the raise inlined (see `DepthBuffer::raise_rows`).
+pub(super) trait Raise {
+    /// `Kernel::raise`.
+    ///
+    /// # Safety
+    /// Only run on a CPU that has the kernel's instructions.
+    unsafe fn raise(cells: &mut [f32], base: f32, step: f32);
+}
+
+/// [`Raise`] in plain Rust.
+pub(super) struct ScalarRaise;
+
+impl Raise for ScalarRaise {
+    #[inline(always)]
+    unsafe fn raise(cells: &mut [f32], base: f32, step: f32) {
+        raise_scalar(cells, base, step);
+    }
+}
+
+/// [`Raise`] with AVX2.
+#[cfg(target_arch = "x86_64")]
+pub(super) struct Avx2Raise;
+
+#[cfg(target_arch = "x86_64")]
+impl Raise for Avx2Raise {
+    #[inline(always)]
+    unsafe fn raise(cells: &mut [f32], base: f32, step: f32) {
+        // SAFETY: the caller's.
+        unsafe { avx2::raise(cells, base, step) }
+    }
+}
+
 /// `raise`, one cell at a time.
 fn raise_scalar(cells: &mut [f32], base: f32, step: f32) {
     for (k, c) in cells.iter_mut().enumerate() {
@@ -154,6 +187,7 @@ mod avx2 {
 
     /// # Safety
     /// The CPU must have AVX2.
+    #[inline]
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn raise(cells: &mut [f32], base: f32, step: f32) {
         let n = cells.len();

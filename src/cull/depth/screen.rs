@@ -308,28 +308,30 @@ impl Screen {
         buffer
             .kernel()
             .spans(left, right, (y_first, c), last_col, spans);
-        for (k, &(lo, hi)) in spans.iter().enumerate() {
-            if lo > hi {
-                continue;
+        // Rows wholly outside a level edge: none.
+        if !level.is_empty() {
+            for (k, span) in spans.iter_mut().enumerate() {
+                let y_top = y_first + (k as i64 as f64) * c;
+                let y_bot = lesser(y_top + bottom, last_centre);
+                if level
+                    .iter()
+                    .any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0)
+                {
+                    *span = (1.0, 0.0);
+                }
             }
+        }
+        let x_far = 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
+        let base = |k: usize, lo: f64| {
             // The first and last pixel centres of the cell row.
             let y_top = y_first + (k as i64 as f64) * c;
             let y_bot = lesser(y_top + bottom, last_centre);
-            if !level.is_empty()
-                && level
-                    .iter()
-                    .any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0)
-            {
-                continue;
-            }
             // The farthest of the cell's corner centres: the least w.
-            let x_first = lo * c + 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
+            let x_first = lo * c + x_far;
             let y = if wb < 0.0 { y_bot } else { y_top };
-            let base = wa * x_first + wb * y + wc - w_round - f32_margin;
-            // Whole numbers within the row (`lo ≤ hi` and both clamped).
-            let (lo, hi) = (lo as i64 as usize, hi as i64 as usize);
-            buffer.raise_span(row_first + k, lo, hi, base as f32, step32);
-        }
+            (wa * x_first + wb * y + wc - w_round - f32_margin) as f32
+        };
+        buffer.raise_rows(row_first, spans, base, step32);
         true
     }
 
