@@ -235,32 +235,51 @@ enum Kind {
     Mask,
 }
 
+/// One event of the sweep, all of it in its key: sifting the heap moves
+/// and compares two words and nothing else.
 #[derive(Clone, Copy, Debug)]
 struct Event {
-    /// The order of events: depth, then kind, then index ([`Event::new`]).
+    /// The order of events: depth, then kind, then index ([`Event::new`]);
+    /// the second word also holds a cell's planes, below the index, which
+    /// is unique within a kind, so they never decide an order.
     key: (u64, u64),
-    kind: Kind,
-    index: u32,
-    /// A cell's planes still to test (its parent was inside the others);
-    /// unused for the rest: objects are frustum-tested when pushed.
-    planes: PlaneMask,
 }
 
 impl Event {
     /// An event at `depth`. Its key orders events as `f64::total_cmp` of
     /// the depths, then the kinds, then the indices (two integer compares
     /// where the heap's sifting spent most of a pop on the float's).
+    /// `planes` are a cell's planes still to test (its parent was inside
+    /// the others); unused for the rest: objects are frustum-tested when
+    /// pushed.
     fn new(depth: f64, kind: Kind, index: u32, planes: PlaneMask) -> Event {
         // `total_cmp`'s own mapping of a float to an ordered integer, moved
         // to unsigned.
         let bits = depth.to_bits() as i64;
         let ordered = bits ^ (((bits >> 63) as u64) >> 1) as i64;
         Event {
-            key: ((ordered as u64) ^ (1 << 63), ((kind as u64) << 32) | u64::from(index)),
-            kind,
-            index,
-            planes,
+            key: (
+                (ordered as u64) ^ (1 << 63),
+                ((kind as u64) << 40) | (u64::from(index) << 8) | u64::from(planes),
+            ),
         }
+    }
+
+    fn kind(&self) -> Kind {
+        match self.key.1 >> 40 {
+            0 => Kind::Cell,
+            1 => Kind::Object,
+            2 => Kind::Dynamic,
+            _ => Kind::Mask,
+        }
+    }
+
+    fn index(&self) -> u32 {
+        (self.key.1 >> 8) as u32
+    }
+
+    fn planes(&self) -> PlaneMask {
+        self.key.1 as PlaneMask
     }
 
     /// A cell's or an object's event: `index` is its [`Pending`] slot.
@@ -598,17 +617,17 @@ impl CullMethod for HorizonCulling {
             }
         }
         while let Some(ev) = state.queue.pop() {
-            match ev.kind {
+            match ev.kind() {
                 Kind::Mask => {
-                    let m = state.masks[ev.index as usize];
+                    let m = state.masks[ev.index() as usize];
                     state.horizon.insert(m.x_lo, m.x_hi, m.height);
                     masks_added += 1;
                 }
                 Kind::Cell => {
-                    let p = state.pending[ev.index as usize];
+                    let p = state.pending[ev.index() as usize];
                     let cell = &cells[p.index as usize];
                     counters.nodes_tested += 1;
-                    let (side, planes) = view.frustum().classify(&cell.bounds, ev.planes);
+                    let (side, planes) = view.frustum().classify(&cell.bounds, ev.planes());
                     if side == Side::Outside
                         || (p.masks != masks_added && state.horizon.hides_frame(p.frame))
                     {
@@ -667,7 +686,7 @@ impl CullMethod for HorizonCulling {
                     }
                 }
                 Kind::Dynamic => {
-                    let i = ev.index as usize;
+                    let i = ev.index() as usize;
                     let frame = sweep.frame_if_occluding(&occludees.boxes()[i]);
                     if state.horizon.hides_frame(frame) {
                         occludees.hide(i);
@@ -678,7 +697,7 @@ impl CullMethod for HorizonCulling {
                         index,
                         frame,
                         masks,
-                    } = state.pending[ev.index as usize];
+                    } = state.pending[ev.index() as usize];
                     let id = objects[index as usize].id;
                     let bounds = &self.bounds[index as usize];
                     if masks != masks_added && state.horizon.hides_frame(frame) {
@@ -811,6 +830,38 @@ mod tests {
             (f.y_lo, f.y_hi) = (f.y_lo.min(y), f.y_hi.max(y));
         }
         Some(f)
+    }
+
+    #[test]
+    fn events_keep_their_fields_and_order_by_depth_kind_and_index_alone() {
+        let kinds = [Kind::Cell, Kind::Object, Kind::Dynamic, Kind::Mask];
+        let depths = [f64::NEG_INFINITY, -1.0, -0.0, 0.0, 1e-300, 2.5, 2.5, 1e300, f64::INFINITY];
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let events: Vec<(f64, Kind, u32, PlaneMask)> = (0..400)
+            .map(|_| {
+                (
+                    depths[rng.random_range(0..depths.len())],
+                    kinds[rng.random_range(0..4)],
+                    rng.random_range(0..4u32) * (u32::MAX / 3),
+                    rng.random(),
+                )
+            })
+            .collect();
+        for &(d, k, i, p) in &events {
+            let e = Event::new(d, k, i, p);
+            assert_eq!((e.kind(), e.index(), e.planes()), (k, i, p));
+        }
+        for &(d1, k1, i1, p1) in &events {
+            for &(d2, k2, i2, p2) in &events {
+                // The heap pops the greatest: the nearest first.
+                let want = (d2.total_cmp(&d1), k2.cmp(&k1), i2.cmp(&i1));
+                let want = want.0.then(want.1).then(want.2);
+                let got = Event::new(d1, k1, i1, p1).cmp(&Event::new(d2, k2, i2, p2));
+                if (k1, i1) != (k2, i2) || d1.total_cmp(&d2).is_ne() {
+                    assert_eq!(got, want, "{d1} {k1:?} {i1} vs {d2} {k2:?} {i2}");
+                }
+            }
+        }
     }
 
     #[test]
