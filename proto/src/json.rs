@@ -280,9 +280,11 @@ pub struct AutoInfo {
 pub struct RankedMethod {
     /// The method (default options).
     pub method: String,
-    /// Mean cull time, µs.
+    /// Mean cull time, µs: CPU time of the thread that culled (so a server
+    /// busy while it measures does not inflate it), wall time for a device
+    /// method.
     pub mean_cull_us: f64,
-    /// Median cull time, µs.
+    /// Median cull time, µs, measured alike.
     pub median_cull_us: f64,
     /// Mean objects in the answer.
     pub mean_pvs: f64,

@@ -87,7 +87,8 @@ impl FrameCost {
 pub struct Measured {
     /// The method (default options).
     pub method: String,
-    /// Mean time to cull a frame, microseconds (what a server pays).
+    /// Mean time to cull a frame, microseconds (what a server pays): CPU
+    /// time of the thread that culled, wall time for a device method.
     pub mean_cull_us: f64,
     /// Median time to cull a frame, microseconds.
     pub median_cull_us: f64,

@@ -11,6 +11,7 @@
 //! of Bittner et al.'s Table 2: cull time + PVS triangles × a cost per
 //! triangle, so the report shows when culling pays.
 
+mod clock;
 mod rank;
 mod region;
 mod report;
@@ -148,6 +149,9 @@ impl Contender {
 #[derive(Clone, Debug, Default)]
 struct Tally {
     cull_us: Vec<f64>,
+    /// Per frame, the CPU time the calling thread spent in the cull
+    /// (empty where there is no per-thread clock): what a ranking charges.
+    cpu_us: Vec<f64>,
     pvs: u64,
     pvs_triangles: u64,
     in_frustum: u64,
@@ -398,8 +402,12 @@ fn time_walk(
         }
         let mut job = CullJob::new(*view, cache);
         job.out = std::mem::take(&mut out);
+        let cpu = clock::thread_cpu_time();
         let culled =
             cull_here(scene, &c.method, job).map_err(|error| EvalError::Cull { frame, error })?;
+        if let (Some(before), Some(after)) = (cpu, clock::thread_cpu_time()) {
+            tally.cpu_us.push((after - before).as_secs_f64() * 1e6);
+        }
         tally.cull_us.push(culled.stats.cull_us);
         c.cache = Some(culled.job.cache);
         out = culled.job.out;

@@ -1,15 +1,16 @@
 //! Measuring a scene's methods for `auto` ("model only what a scene
 //! requires"): each conservative method, with its defaults, culls sample
 //! views of the scene (a street and a random walk at eye height, or an
-//! orbit around a scene with no room at eye height), timed as `pvsd eval`
-//! times it; the figures become the scene's
+//! orbit around a scene with no room at eye height), each cull charged
+//! the CPU time of the thread that ran it (a server ranks while it serves,
+//! and waiting for a core is not a method's cost); the figures become the scene's
 //! [`Ranking`](crate::cull::ranking::Ranking), cached with the bakes.
 
 use std::time::Instant;
 
 use super::{Contender, EvalParams, Tally, WalkKind, WalkParams, time_walk, walk};
 use crate::cull::ranking::{Measured, Ranking};
-use crate::cull::{MethodOptions, SceneMethods, View};
+use crate::cull::{Execution, MethodOptions, SceneMethods, View};
 use crate::scene::BakeCache;
 
 /// The sample views a ranking is measured on.
@@ -53,7 +54,7 @@ impl RankParams {
             })
             .unwrap_or_else(|_| "unknown".into());
         format!(
-            "ranking v1 pvsd {} build {build} frames {} viewport {}x{} seed {}",
+            "ranking v2 pvsd {} build {build} frames {} viewport {}x{} seed {}",
             env!("CARGO_PKG_VERSION"),
             self.frames_per_walk,
             self.viewport[0],
@@ -140,10 +141,19 @@ pub fn rank(methods: &SceneMethods, params: &RankParams) -> Ranking {
             continue;
         }
         let n = frames as f64;
+        // The measuring thread's CPU time, which waiting for a core does
+        // not inflate ([`super::clock`]); a device method works on the
+        // device's thread, and is charged the wall time this one waited.
+        let on_device = matches!(method.execution(), Execution::Device(_));
+        let times = if on_device || tally.cpu_us.len() != tally.cull_us.len() {
+            &tally.cull_us
+        } else {
+            &tally.cpu_us
+        };
         measured.push(Measured {
             method: method.name().to_string(),
-            mean_cull_us: tally.cull_us.iter().sum::<f64>() / n,
-            median_cull_us: super::percentile(&tally.cull_us, 0.5),
+            mean_cull_us: times.iter().sum::<f64>() / n,
+            median_cull_us: super::percentile(times, 0.5),
             mean_pvs: pvs as f64 / n,
             mean_pvs_triangles: triangles as f64 / n,
         });
