@@ -90,7 +90,7 @@ pub struct Measured {
     /// Mean time to cull a frame, microseconds (what a server pays): CPU
     /// time of the thread that culled, wall time for a device method.
     pub mean_cull_us: f64,
-    /// Median time to cull a frame, microseconds.
+    /// Median time to cull a frame, microseconds, measured alike.
     pub median_cull_us: f64,
     /// Mean objects in the answer.
     pub mean_pvs: f64,
