@@ -1,6 +1,7 @@
 //! Baking a scene's DDOs (Bernardini et al. §3, Fig. 5): the octree over
 //! its static triangles and, for each face of each node, its masks for
-//! both partitions of the viewspace ([`Regions::ALL`]), on all cores, with
+//! both partitions of the viewspace (the 64 regions proved, the 32 derived
+//! from them: [`coarse_mask`]), on all cores, with
 //! a progress bar on a terminal; read from and written to the bake cache.
 
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -11,7 +12,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 
 use super::octree::{Octree, OctreeParams, Skeleton, face_index};
-use super::regions::Regions;
+use super::regions::{Regions, coarse_mask};
 use super::validity::{Face, Scratch, Surfaces, Validator};
 use crate::scene::{BakeCache, Scene};
 
@@ -19,12 +20,20 @@ use crate::scene::{BakeCache, Scene};
 /// must change this text, so old files are rebuilt, never misread.
 fn params_text(params: OctreeParams) -> String {
     format!(
-        "ddo v1 leaf={} depth={} regions=32,64 clip={}",
+        "ddo v2 leaf={} depth={} regions=64>32 angle={} clip={}",
         params.leaf_triangles,
         params.max_depth,
+        super::regions::MAX_ANGLE_DEG,
         super::validity::CLIP
     )
 }
+
+/// The octree in which the validity test looks for the triangles along a
+/// segment.
+const SEARCH_PARAMS: OctreeParams = OctreeParams {
+    leaf_triangles: 24,
+    max_depth: 12,
+};
 
 /// The octree and masks of `scene`, or why it has none (no static geometry,
 /// or no face valid from anywhere: DDOs would not pay).
@@ -59,9 +68,13 @@ pub fn bake(scene: &Scene, params: OctreeParams) -> Result<Octree, String> {
     let skeleton = Skeleton::build(&boxes, &owner, params)
         .ok_or_else(|| "the scene has no static geometry".to_string())?;
     let surfaces = Surfaces::new(opaque.iter().map(|&(_, t)| corners(t)).collect());
+    // The segments' triangles are found in a finer octree than the DDOs':
+    // a leaf of the DDO octree holds up to 256 triangles, most of them far
+    // from any one segment.
+    let index = Skeleton::build(&boxes, &owner, SEARCH_PARAMS).expect("static geometry, as above");
     let validator = Validator {
         surfaces: &surfaces,
-        index: &skeleton,
+        index: &index,
         extent: scene.bounds().extent().max_element() as f64,
     };
     let bar = ProgressBar::new(skeleton.nodes.len() as u64).with_style(
@@ -82,18 +95,12 @@ pub fn bake(scene: &Scene, params: OctreeParams) -> Result<Octree, String> {
                     for side in 0..2 {
                         let face = Face::of_cube(node.min, node.size, axis, side);
                         let f = face_index(axis, side);
-                        for regions in Regions::ALL {
-                            let mut bits = 0u64;
-                            for r in 0..regions.count() {
-                                if validator.is_valid(&face, regions, r, scratch) {
-                                    bits |= 1 << r;
-                                }
-                            }
-                            match regions {
-                                Regions::R32 => m32[f] = bits as u32,
-                                Regions::R64 => m64[f] = bits,
+                        for r in 0..Regions::R64.count() {
+                            if validator.is_valid(&face, Regions::R64, r, scratch) {
+                                m64[f] |= 1 << r;
                             }
                         }
+                        m32[f] = coarse_mask(m64[f]);
                     }
                 }
                 let n = done.fetch_add(1, Ordering::Relaxed);

@@ -90,6 +90,11 @@ pub struct Surfaces {
     edge_ends: Vec<[DVec3; 2]>,
     /// Per triangle, its box.
     boxes: Vec<[DVec3; 2]>,
+    /// Per triangle, its connected set over the whole scene (joined as in
+    /// the walks, through every shared edge).
+    component: Vec<u32>,
+    /// Per connected set, the box of its triangles.
+    component_boxes: Vec<[DVec3; 2]>,
 }
 
 impl Surfaces {
@@ -138,12 +143,15 @@ impl Surfaces {
                 fill[e as usize] += 1;
             }
         }
-        let boxes = triangles
+        let boxes: Vec<[DVec3; 2]> = triangles
             .iter()
             .map(|t| [t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2])])
             .collect();
+        let (component, component_boxes) = components(&edges, &edge_start, &edge_triangles, &boxes);
         Surfaces {
             boxes,
+            component,
+            component_boxes,
             triangles,
             edges,
             edge_start,
@@ -156,6 +164,47 @@ impl Surfaces {
         &self.edge_triangles
             [self.edge_start[e as usize] as usize..self.edge_start[e as usize + 1] as usize]
     }
+}
+
+/// Each triangle's connected set (triangles sharing an edge are joined) and
+/// each set's box, by union–find.
+fn components(
+    edges: &[[u32; 3]],
+    edge_start: &[u32],
+    edge_triangles: &[u32],
+    boxes: &[[DVec3; 2]],
+) -> (Vec<u32>, Vec<[DVec3; 2]>) {
+    let mut parent: Vec<u32> = (0..edges.len() as u32).collect();
+    fn root(parent: &mut [u32], mut t: u32) -> u32 {
+        while parent[t as usize] != t {
+            let up = parent[parent[t as usize] as usize];
+            parent[t as usize] = up;
+            t = up;
+        }
+        t
+    }
+    for e in 0..edge_start.len() - 1 {
+        let on = &edge_triangles[edge_start[e] as usize..edge_start[e + 1] as usize];
+        for w in on.windows(2) {
+            let (a, b) = (root(&mut parent, w[0]), root(&mut parent, w[1]));
+            parent[a.max(b) as usize] = a.min(b);
+        }
+    }
+    let mut id = vec![u32::MAX; edges.len()];
+    let mut component = Vec::with_capacity(edges.len());
+    let mut component_boxes: Vec<[DVec3; 2]> = Vec::new();
+    for (t, tbox) in boxes.iter().enumerate() {
+        let r = root(&mut parent, t as u32) as usize;
+        if id[r] == u32::MAX {
+            id[r] = component_boxes.len() as u32;
+            component_boxes.push([DVec3::INFINITY, DVec3::NEG_INFINITY]);
+        }
+        let c = id[r];
+        let b = &mut component_boxes[c as usize];
+        *b = [b[0].min(tbox[0]), b[1].max(tbox[1])];
+        component.push(c);
+    }
+    (component, component_boxes)
 }
 
 /// Per-thread scratch of the test, reused between faces.
@@ -266,6 +315,19 @@ impl Frustum {
             v - self.v[0] - self.b[0] * t + self.m,
             self.v[1] + self.b[1] * t + self.m - v,
         ]
+    }
+
+    /// Whether the box `[lo, hi]` (frame coordinates) lies inside the
+    /// frustum without touching its caps, with the margin to spare.
+    fn holds_box(&self, lo: DVec3, hi: DVec3) -> bool {
+        (0..8).all(|k| {
+            let q = DVec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            );
+            self.margins(q).iter().all(|&g| g > 3.0 * self.m)
+        })
     }
 
     /// Whether triangle `q` (frame coordinates) may meet the grown frustum:
@@ -425,9 +487,7 @@ impl Validator<'_> {
     /// Whether `face` is a valid occluder for every eye of `region` of
     /// `regions` (see the module doc).
     pub fn is_valid(&self, face: &Face, regions: Regions, region: usize, s: &mut Scratch) -> bool {
-        let Some(([a0, a1], [b0, b1])) = regions.slopes(region) else {
-            return false;
-        };
+        let ([a0, a1], [b0, b1]) = regions.slopes(region);
         let grow = 0.5 / CLIP + SLOPE_MARGIN;
         let h = CLIP * face.size * (1.0 - CLIP_MARGIN);
         let w_top = face.w + face.sign * h;
@@ -526,6 +586,18 @@ impl Validator<'_> {
             if s.visited[seed as usize] > crossing_stamp {
                 continue;
             }
+            // A connected set that lies wholly inside `V`, clear of the
+            // caps, is never a separator: it has a boundary edge inside `V`
+            // (condition 1 fails) or is closed, and a closed surface crosses
+            // a segment whose ends lie outside its box an even number of
+            // times (condition 3 fails). The dense parts inside a body are
+            // such sets; walking them all to find that out was most of
+            // the bake.
+            let [lo, hi] = surfaces.component_boxes[surfaces.component[seed as usize] as usize];
+            let (a, b) = (face.local(lo), face.local(hi));
+            if v.holds_box(a.min(b), a.max(b)) {
+                continue;
+            }
             let walk = s.next_stamp();
             s.visited[seed as usize] = walk;
             s.stack.clear();
@@ -545,9 +617,11 @@ impl Validator<'_> {
                     let on = surfaces.on_edge(e);
                     let mut inside = 0;
                     for &n in on {
-                        if n == t || v.may_meet_triangle(&local(n)) {
+                        // A neighbour this walk already took meets `V`: no
+                        // need to test it again from its other edges.
+                        let mark = s.visited[n as usize];
+                        if n == t || mark == walk || v.may_meet_triangle(&local(n)) {
                             inside += 1;
-                            let mark = s.visited[n as usize];
                             if mark > crossing_stamp && mark < walk {
                                 // Joined to a component judged before:
                                 // this walk only sees part of it.
@@ -617,6 +691,15 @@ mod tests {
         tris
     }
 
+    /// A wall in the plane `z = z` over `[-half, half]²`, two triangles.
+    fn wide_wall(z: f64, half: f64) -> Vec<[DVec3; 3]> {
+        let p = |x: f64, y: f64| DVec3::new(x, y, z);
+        vec![
+            [p(-half, -half), p(half, -half), p(half, half)],
+            [p(-half, -half), p(half, half), p(-half, half)],
+        ]
+    }
+
     /// Whether the `-z` face of the unit cube around the origin (its node
     /// above it, eyes at `z ≥ 1.5`) is valid for the region of slopes
     /// `(a, b)`, with `triangles` as the scene.
@@ -664,12 +747,55 @@ mod tests {
         }
     }
 
+    /// The 12 triangles of the closed cube `[lo, hi]`.
+    fn cube(lo: DVec3, hi: DVec3) -> Vec<[DVec3; 3]> {
+        let c = |k: usize| {
+            DVec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            )
+        };
+        let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+        quads
+            .iter()
+            .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
+            .collect()
+    }
+
+    #[test]
+    fn a_closed_part_inside_the_frustum_is_skipped_and_a_wall_beyond_it_still_counts() {
+        // A small closed cube on the reference segment, inside `V` and
+        // clear of its caps: two crossings, never a separator.
+        let part = cube(DVec3::new(-0.1, -0.1, 0.0), DVec3::new(0.3, 0.3, 0.2));
+        let surfaces = Surfaces::new(part.clone());
+        assert_eq!(surfaces.component_boxes.len(), 1);
+        for regions in Regions::ALL {
+            assert!(!face_valid(part.clone(), regions, 0.1, 0.1), "{regions:?}");
+            let mut both = part.clone();
+            both.extend(wall(0.6, 24, &[]));
+            assert!(face_valid(both, regions, 0.1, 0.1), "{regions:?}");
+        }
+        // Two walls are two sets, each with its own box.
+        let mut two = wall(0.25, 4, &[]);
+        two.extend(wall(0.75, 4, &[]));
+        let surfaces = Surfaces::new(two);
+        assert_eq!(surfaces.component_boxes.len(), 2);
+        assert_eq!(surfaces.component_boxes[1][0].z, 0.75);
+    }
+
     #[test]
     fn a_face_seen_edge_on_is_never_valid() {
         for regions in Regions::ALL {
-            // Grazing regions have unbounded slopes: no wall is wide enough.
+            // Past 80° from the normal an eye is in no region: no wall is
+            // wide enough for every ray towards grazing.
             assert!(!face_valid(wall(0.25, 24, &[]), regions, 50.0, 0.0), "{regions:?}");
             assert!(!face_valid(wall(0.25, 24, &[]), regions, 0.1, -80.0), "{regions:?}");
+            // 70° off (slope 2.75): the rays travel up to `H · (5.67 + ¼)`
+            // sideways below the clipping plane, beyond this 6-wide wall...
+            assert!(!face_valid(wall(0.25, 24, &[]), regions, 2.75, 0.0), "{regions:?}");
+            // ...and within one 40 wide.
+            assert!(face_valid(wide_wall(0.25, 20.0), regions, 2.75, 0.0), "{regions:?}");
         }
     }
 }
