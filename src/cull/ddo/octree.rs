@@ -194,19 +194,17 @@ impl Skeleton {
     /// Calls `visit` with every leaf whose cube, grown by `grow`, segment
     /// `p q` may meet.
     pub fn leaves_along(&self, p: DVec3, q: DVec3, grow: f64, mut visit: impl FnMut(usize)) {
-        let mut stack = Vec::with_capacity(64);
-        stack.push(0u32);
+        let mut stack = vec![0usize];
         let g = DVec3::splat(grow);
-        let slab = Slab::new(p, q);
         while let Some(n) = stack.pop() {
-            let node = &self.nodes[n as usize];
-            if !slab.meets(node.min - g, node.max() + g) {
+            let node = &self.nodes[n];
+            if !segment_meets_box(p, q, node.min - g, node.max() + g) {
                 continue;
             }
             if node.is_leaf() {
-                visit(n as usize);
+                visit(n);
             } else {
-                stack.extend((0..8).map(|k| node.children + k));
+                stack.extend((0..8).map(|k| node.children as usize + k));
             }
         }
     }
@@ -334,38 +332,20 @@ impl Octree {
 /// caller that must not miss a meeting grows the box by a margin far
 /// above the rounding here).
 pub fn segment_meets_box(p: DVec3, q: DVec3, lo: DVec3, hi: DVec3) -> bool {
-    Slab::new(p, q).meets(lo, hi)
-}
-
-/// A segment set up for many box tests: its start and inverse direction.
-struct Slab {
-    p: DVec3,
-    inv: DVec3,
-}
-
-impl Slab {
-    fn new(p: DVec3, q: DVec3) -> Slab {
-        Slab { p, inv: (q - p).recip() }
-    }
-
-    /// Whether the segment may meet box `[lo, hi]` (a hair of slack along
-    /// the segment, so a touch is never lost to rounding).
-    fn meets(&self, lo: DVec3, hi: DVec3) -> bool {
-        let (mut t0, mut t1) = (0.0f64, 1.0f64);
-        for k in 0..3 {
-            if self.inv[k].is_infinite() {
-                // Parallel to the slab: inside it or never.
-                if self.p[k] < lo[k] || self.p[k] > hi[k] {
-                    return false;
-                }
-                continue;
+    let d = q - p;
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if p[k] < lo[k] || p[k] > hi[k] {
+                return false;
             }
-            let (a, b) = ((lo[k] - self.p[k]) * self.inv[k], (hi[k] - self.p[k]) * self.inv[k]);
-            t0 = t0.max(a.min(b));
-            t1 = t1.min(a.max(b));
+            continue;
         }
-        t0 <= t1 + 1e-9
+        let (a, b) = ((lo[k] - p[k]) / d[k], (hi[k] - p[k]) / d[k]);
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
     }
+    t0 <= t1 + 1e-9
 }
 
 /// Little-endian reads from a payload.
