@@ -180,18 +180,6 @@ impl DepthBuffer {
         }
     }
 
-    /// Whether any of tiles `a..=b` (by index) is stale.
-    fn any_stale(&self, a: usize, b: usize) -> bool {
-        let ((wa, from), (wb, upto)) = bit_range(a, b);
-        if wa == wb {
-            self.stale[wa] & from & upto != 0
-        } else {
-            self.stale[wa] & from != 0
-                || self.stale[wa + 1..wb].iter().any(|&s| s != 0)
-                || self.stale[wb] & upto != 0
-        }
-    }
-
     /// The least value of tile `(tx, ty)`, taken again if stale.
     fn tile(&mut self, tx: usize, ty: usize) -> f32 {
         let t = ty * self.tiles_across + tx;
@@ -236,12 +224,14 @@ impl DepthBuffer {
         let mut ty = rect.y0 / TILE;
         while ty <= ty1 {
             let at = ty * self.tiles_across;
-            // A row of tiles none of which is stale: their values compared
-            // all at once, without a branch per tile (a NaN `w` fails).
-            if !self.any_stale(at + tx0, at + tx1)
-                && self.tiles[at + tx0..at + tx1 + 1]
-                    .iter()
-                    .fold(true, |all, &t| all & (t > w))
+            // A tile's kept value, stale or not, is at most its least
+            // cell (cells only rise until a clear, which zeroes the
+            // tiles): a row of tiles all above `w` is hidden as it is,
+            // compared at once without a branch per tile (a NaN `w`
+            // fails).
+            if self.tiles[at + tx0..at + tx1 + 1]
+                .iter()
+                .fold(true, |all, &t| all & (t > w))
             {
                 ty += 1;
                 continue;
@@ -249,7 +239,9 @@ impl DepthBuffer {
             let mut tx = tx0;
             while tx <= tx1 {
                 // (A NaN `w` is hidden nowhere.)
-                let hidden = self.tile(tx, ty) > w || self.cells_hide(rect, tx, ty, w);
+                let hidden = self.tiles[at + tx] > w
+                    || self.tile(tx, ty) > w
+                    || self.cells_hide(rect, tx, ty, w);
                 if !hidden {
                     return false;
                 }

@@ -211,32 +211,32 @@ impl Screen {
         if buffer.hides(cells, (1.0 / z_min) as f32) {
             return false;
         }
-        // Edge functions A·x + B·y + C ≥ tol inside, one per edge.
+        // Edge functions A·x + B·y + C ≥ tol inside, one per edge from
+        // corner k to k + 1, signed once the winding is known (below).
         let centroid: DVec3 = poly.iter().sum::<DVec3>() / len as f64;
         let edges = &mut scratch.edges;
         edges.clear();
         let mut orientation = 0.0;
-        for k in 0..len {
-            let (a, b) = (poly[k], poly[(k + 1) % len]);
+        // Each corner's squared length taken once, for both its edges.
+        let (mut a, mut a2) = (poly[0], poly[0].length_squared());
+        for k in 1..=len {
+            let b = if k < len { poly[k] } else { poly[0] };
+            let b2 = b.length_squared();
             let e = a.cross(b);
             orientation += e.dot(centroid);
-            let size = a.length_squared().max(b.length_squared()).sqrt();
+            let size = a2.max(b2).sqrt();
             let tol = (EDGE_SLACK * size + self.slack * 4.0) * size * self.ray;
             let (ea, eb) = (
                 2.0 * e.x * self.tx / self.width,
                 -2.0 * e.y * self.ty / self.height,
             );
             edges.push((ea, eb, -e.x * self.tx + e.y * self.ty + e.z, tol));
+            (a, a2) = (b, b2);
         }
         if !(orientation != 0.0 && orientation.is_finite()) {
             return false;
         }
         let s = orientation.signum();
-        for e in edges.iter_mut() {
-            (e.0, e.1, e.2) = (e.0 * s, e.1 * s, e.2 * s);
-            // |A| + |B| ≥ the edge function's growth per pixel of distance.
-            e.3 += PIXEL_SLACK * (e.0.abs() + e.1.abs());
-        }
         let edges = &edges[..];
 
         // Inverse depth: w(x, y) = n·r / far_side, affine in (x, y).
@@ -263,6 +263,9 @@ impl Screen {
         level.clear();
         let bottom = c - 1.0;
         for &(ea, eb, ec, tol) in edges {
+            let (ea, eb, ec) = (ea * s, eb * s, ec * s);
+            // |A| + |B| ≥ the edge function's growth per pixel of distance.
+            let tol = tol + PIXEL_SLACK * (ea.abs() + eb.abs());
             if ea == 0.0 {
                 level.push((eb, ec - tol));
                 continue;
