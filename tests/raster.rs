@@ -158,6 +158,32 @@ fn a_box_seen_through_a_one_pixel_slit_is_kept() {
 }
 
 #[test]
+fn a_sliver_narrower_than_min_width_is_not_drawn() {
+    // A post 0.4 wide and 10 tall, 10 units away: 11 pixels (5.5 cells)
+    // wide on screen, and a box a quarter as wide just behind it. Its
+    // width is judged at the nearest depth of a sphere around it, 5 units
+    // away: 22 pixels, 11 cells.
+    let mut b = SceneBuilder::new("post");
+    b.begin_object("post", None);
+    b.add_triangles(rect(-0.2, 0.2, -5.0, 5.0, 0.0), false);
+    b.begin_object("box", None);
+    b.add_triangles(
+        solid(Vec3::new(-0.05, -0.5, -1.0), Vec3::new(0.05, 0.5, -0.5)),
+        false,
+    );
+    let scene = Arc::new(b.finish());
+    let cam = camera(DVec3::new(0.0, 0.2, 10.0), -DVec3::Z);
+    assert_eq!(Truth::render(&scene, &cam).unwrap().visible(), vec![0]);
+    let methods = SceneMethods::prepare(scene);
+    // Drawn at the default (one cell), with no bound and up to 11 cells;
+    // not drawn when asked for 12, so the box behind it stays.
+    assert_eq!(raster(&methods, cam, ""), vec![0]);
+    assert_eq!(raster(&methods, cam, "min_width=0"), vec![0]);
+    assert_eq!(raster(&methods, cam, "min_width=10"), vec![0]);
+    assert_eq!(raster(&methods, cam, "min_width=12"), vec![0, 1]);
+}
+
+#[test]
 fn a_see_through_wall_hides_nothing() {
     check(
         &wall_and_box(None, true),

@@ -25,8 +25,8 @@
 //! outside the frustum or hidden is dropped with its subtree; in a leaf,
 //! each object's part in the cell is tested, and an object found visible
 //! is added to the answer and its surfaces drawn at once (nearest cluster
-//! first, those at least `min_size` pixels across, up to `budget` a
-//! frame), so that what it hides farther on is culled — the second pass.
+//! first, those at least `min_size` pixels across and `min_width` cells
+//! wide, up to `budget` a frame), so that what it hides farther on is culled — the second pass.
 //! (Drawing the scene's large occluders first, as the object-space
 //! methods pick them, was measured slower on every scene: the walk draws
 //! them when it reaches them.) Avatars and movable objects are tested
@@ -68,7 +68,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
     name: "raster",
     purpose: "a conservative depth buffer on the CPU (SIMD) drawn from visible surfaces as a front-to-back walk finds them: general scenes",
     options: &OPTIONS,
-    checked_with: &["cell=1", "simd=false:splits=0", "min_size=0:budget=64"],
+    checked_with: &["cell=1", "simd=false:splits=0", "min_size=0:min_width=0:budget=64"],
     regions: Some("its depth buffer is drawn at the request's viewport for one camera: the views of a region cover other pixels"),
     build,
 };
@@ -94,6 +94,18 @@ const MIN_SIZE: Ranged<f64> = Ranged {
     max: 1e6,
 };
 
+/// A visible object's surfaces narrower than this on screen (cells, across
+/// their width) are not drawn: a cell is written only where one polygon
+/// covers all of it, so a sliver a cell or two wide writes a cell or none
+/// per row it raises (docs/raster.md measures 0 to 3 cells).
+const MIN_WIDTH: Ranged<f64> = Ranged {
+    key: "min_width",
+    noun: "a number of cells",
+    default: 1.0,
+    min: 0.0,
+    max: 1e6,
+};
+
 /// A box not hidden whole is halved, and its halves tried, up to this many
 /// times: a long box's nearest depth is far nearer than most of it.
 const SPLITS: Ranged<u32> = Ranged {
@@ -114,9 +126,10 @@ const BUDGET: Ranged<u32> = Ranged {
     max: 1_000_000,
 };
 
-const OPTIONS: [&str; 6] = [
+const OPTIONS: [&str; 7] = [
     CELL.key,
     MIN_SIZE.key,
+    MIN_WIDTH.key,
     SPLITS.key,
     BUDGET.key,
     "simd",
@@ -176,6 +189,8 @@ struct Canvas {
     splits: u32,
     /// Polygons this frame may still draw.
     budget: u32,
+    /// Surfaces narrower than this on screen (pixels, not cells) are not drawn.
+    min_width: f64,
     /// Whether closed objects' proxies are drawn.
     proxies: bool,
 }
@@ -191,6 +206,7 @@ impl Canvas {
             order: Vec::new(),
             splits: 0,
             budget: 0,
+            min_width: 0.0,
             proxies: true,
         }
     }
@@ -198,6 +214,7 @@ impl Canvas {
     /// Starts a frame over `objects` objects.
     fn begin(&mut self, objects: usize, (cols, rows): (usize, usize), state: &RasterState) {
         (self.splits, self.budget, self.proxies) = (state.splits, state.budget, state.proxies);
+        self.min_width = state.min_width * state.cell as f64;
         self.buffer.reset(cols, rows);
         self.drawn.resize(objects, 0);
         self.frame = self.frame.wrapping_add(1);
@@ -274,6 +291,7 @@ impl CanvasPool {
 pub struct RasterState {
     cell: usize,
     min_size: f64,
+    min_width: f64,
     splits: u32,
     budget: u32,
     proxies: bool,
@@ -316,6 +334,7 @@ impl RasterCulling {
             _ => 0.0,
         };
         let planes = view.frustum().planes();
+        let min_width = canvas.min_width;
         // Clusters on view and large enough, nearest first: a near cluster
         // drawn lets the hidden test skip those behind it, and a budget
         // goes to what hides the most.
@@ -363,7 +382,10 @@ impl RasterCulling {
                     || planes.iter().enumerate().any(|(k, p)| {
                         crossed & (1 << k) != 0 && p.signed_distance(s.centre) < -s.radius
                     })
-                    || screen.pixels_across(s.centre, s.radius) < min_size
+                    || {
+                        let across = screen.pixels_across(s.centre, s.radius);
+                        across < min_size || across * s.breadth < min_width
+                    }
                 {
                     continue;
                 }
@@ -458,6 +480,7 @@ impl CullMethod for RasterCulling {
         let r = options.reader("raster", &OPTIONS);
         let cell = r.ranged(&CELL)?;
         let min_size = r.ranged(&MIN_SIZE)?;
+        let min_width = r.ranged(&MIN_WIDTH)?;
         let splits = r.ranged(&SPLITS)?;
         let budget = r.ranged(&BUDGET)?;
         let proxies = r.flag("proxies", true)?;
@@ -470,6 +493,7 @@ impl CullMethod for RasterCulling {
         Ok(RasterState {
             cell,
             min_size,
+            min_width,
             splits,
             budget,
             proxies,

@@ -30,6 +30,10 @@ pub struct Surface {
     /// Centre and radius of a sphere holding it.
     pub centre: DVec3,
     pub radius: f64,
+    /// How wide it is for its size: its area over its diameter squared
+    /// (a square's is ½, a long sliver's near 0), so that its width on
+    /// screen is about this share of its size there.
+    pub breadth: f64,
 }
 
 /// Neighbouring surfaces of one object, largest first.
@@ -283,6 +287,7 @@ impl Surfaces {
                         thickness: thickness(corners),
                         centre: *centre,
                         radius: *radius,
+                        breadth: area(corners) / (4.0 * radius * radius),
                     });
                     out.corners.extend(corners.iter().map(|c| c.as_vec3()));
                     bounds.merge(&Aabb::enclosing(centre - *radius, centre + *radius));
