@@ -106,15 +106,21 @@ const MIN_WIDTH: Ranged<f64> = Ranged {
     max: 1e6,
 };
 
-/// A box not hidden whole is halved, and its halves tried, up to this many
-/// times: a long box's nearest depth is far nearer than most of it.
+/// An object's box not hidden whole is halved, and its halves tried, up
+/// to this many times: a long box's nearest depth is far nearer than most
+/// of it. A kd node's box is halved at most [`NODE_SPLITS`] times.
 const SPLITS: Ranged<u32> = Ranged {
     key: "splits",
     noun: "a whole number",
-    default: 2,
+    default: 6,
     min: 0,
     max: 6,
 };
+
+/// At most this many halvings of a kd node's box: a node not hidden is
+/// walked into, and its children and objects are tested on their own,
+/// so halving it further costs more than it culls (docs/raster.md).
+const NODE_SPLITS: u32 = 2;
 
 /// Most polygons drawn per frame: a bound on a frame's work where much is
 /// near the eye (what is not drawn only hides less).
@@ -429,7 +435,7 @@ impl RasterCulling {
             let node = &nodes[i as usize];
             tested += 1;
             let (side, mask) = view.frustum().classify(&node.bounds, mask);
-            if side == Side::Outside || canvas.visibility(screen, &node.bounds) == Visibility::Invisible {
+            if side == Side::Outside || canvas.hidden(screen, &node.bounds, canvas.splits.min(NODE_SPLITS)) {
                 continue;
             }
             match node.kind {
