@@ -39,7 +39,8 @@ pub struct DepthBuffer {
     /// clear touches only those and a tile with an unwritten row is known
     /// to hold a zero without reading it.
     written: Vec<(u32, u32)>,
-    /// Per tile, the least value of its cells, where not stale.
+    /// Per tile, the least value of its cells where not stale, and at
+    /// most it where stale: cells only rise until a clear zeroes both.
     tiles: Vec<f32>,
     /// Per tile (a bit each, by tile index), whether a cell changed since
     /// its least value was taken: it is taken again when a test needs it,

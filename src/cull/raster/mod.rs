@@ -26,11 +26,11 @@
 //! each object's part in the cell is tested, and an object found visible
 //! is added to the answer and its surfaces drawn at once (nearest cluster
 //! first, those at least `min_size` pixels across and `min_width` cells
-//! wide, up to `budget` a frame), so that what it hides farther on is culled — the second pass.
-//! (Drawing the scene's large occluders first, as the object-space
-//! methods pick them, was measured slower on every scene: the walk draws
-//! them when it reaches them.) Avatars and movable objects are tested
-//! last, against the whole buffer.
+//! wide, up to `budget` a frame), so that what it hides farther on is
+//! culled — the second pass. (Drawing the scene's large occluders
+//! first, as the object-space methods pick them, was measured slower on
+//! every scene: the walk draws them when it reaches them.) Avatars and
+//! movable objects are tested last, against the whole buffer.
 //!
 //! **Why it never drops a visible object.** The buffer's rule
 //! ([`crate::cull::depth`]) hides a box only behind drawn polygons that
