@@ -191,20 +191,54 @@ impl Skeleton {
         &self.triangles[a as usize..b as usize]
     }
 
-    /// Calls `visit` with every leaf whose cube, grown by `grow`, segment
-    /// `p q` may meet.
-    pub fn leaves_along(&self, p: DVec3, q: DVec3, grow: f64, mut visit: impl FnMut(usize)) {
-        let mut stack = vec![0usize];
+    /// Calls `visit` with every leaf whose cube, grown by `grow`, `segment`
+    /// may meet; `stack` is the walk's (kept by the caller, so that the
+    /// bake's millions of walks allocate nothing).
+    pub fn leaves_along(
+        &self,
+        segment: &Segment,
+        grow: f64,
+        stack: &mut Vec<u32>,
+        mut visit: impl FnMut(usize),
+    ) {
         let g = DVec3::splat(grow);
+        // Start at the smallest node whose cube holds the segment's box
+        // grown by twice `grow`: no cube outside it, grown by `grow`, can
+        // reach the segment, and the levels above cost a bake most of its
+        // box tests.
+        let (lo, hi) = (segment.lo() - g * 2.0, segment.hi() + g * 2.0);
+        let mut start = 0u32;
+        loop {
+            let node = &self.nodes[start as usize];
+            if node.is_leaf() {
+                break;
+            }
+            let mid = node.centre();
+            let mut k = 0;
+            let mut inside = true;
+            for axis in 0..3 {
+                if lo[axis] > mid[axis] {
+                    k |= 1 << axis;
+                } else if hi[axis] >= mid[axis] {
+                    inside = false;
+                }
+            }
+            if !inside {
+                break;
+            }
+            start = node.children + k;
+        }
+        stack.clear();
+        stack.push(start);
         while let Some(n) = stack.pop() {
-            let node = &self.nodes[n];
-            if !segment_meets_box(p, q, node.min - g, node.max() + g) {
+            let node = &self.nodes[n as usize];
+            if !segment.meets_box(node.min - g, node.max() + g) {
                 continue;
             }
             if node.is_leaf() {
-                visit(n);
+                visit(n as usize);
             } else {
-                stack.extend((0..8).map(|k| node.children as usize + k));
+                stack.extend((0..8).map(|k| node.children + k));
             }
         }
     }
@@ -328,24 +362,57 @@ impl Octree {
     }
 }
 
-/// Whether segment `p q` may meet the box `[lo, hi]` (slab clipping; a
-/// caller that must not miss a meeting grows the box by a margin far
-/// above the rounding here).
-pub fn segment_meets_box(p: DVec3, q: DVec3, lo: DVec3, hi: DVec3) -> bool {
-    let d = q - p;
-    let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for k in 0..3 {
-        if d[k] == 0.0 {
-            if p[k] < lo[k] || p[k] > hi[k] {
-                return false;
-            }
-            continue;
+/// A segment `p q` set up for many box tests (the bake tests each of its
+/// segments against hundreds of boxes): the reciprocal of its direction is
+/// taken once.
+#[derive(Clone, Copy, Debug)]
+pub struct Segment {
+    p: DVec3,
+    q: DVec3,
+    /// `1 / (q − p)` per axis; infinite where the segment is flat along it.
+    inv: DVec3,
+}
+
+impl Segment {
+    /// The segment from `p` to `q`.
+    pub fn new(p: DVec3, q: DVec3) -> Segment {
+        Segment {
+            p,
+            q,
+            inv: (q - p).recip(),
         }
-        let (a, b) = ((lo[k] - p[k]) / d[k], (hi[k] - p[k]) / d[k]);
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
     }
-    t0 <= t1 + 1e-9
+
+    /// The lowest corner of its box.
+    pub fn lo(&self) -> DVec3 {
+        self.p.min(self.q)
+    }
+
+    /// The highest corner of its box.
+    pub fn hi(&self) -> DVec3 {
+        self.p.max(self.q)
+    }
+
+    /// Whether it may meet the box `[lo, hi]` (slab clipping; a caller that
+    /// must not miss a meeting grows the box by a margin far above the
+    /// rounding here: a product by the reciprocal is within two roundings
+    /// of the quotient, and the `1e-9` slack on the segment's parameter is
+    /// seven orders above that).
+    pub fn meets_box(&self, lo: DVec3, hi: DVec3) -> bool {
+        let (mut t0, mut t1) = (0.0f64, 1.0f64);
+        for k in 0..3 {
+            if self.inv[k].is_infinite() {
+                if self.p[k] < lo[k] || self.p[k] > hi[k] {
+                    return false;
+                }
+                continue;
+            }
+            let (a, b) = ((lo[k] - self.p[k]) * self.inv[k], (hi[k] - self.p[k]) * self.inv[k]);
+            t0 = t0.max(a.min(b));
+            t1 = t1.min(a.max(b));
+        }
+        t0 <= t1 + 1e-9
+    }
 }
 
 /// Little-endian reads from a payload.
@@ -407,5 +474,60 @@ mod tests {
         let mut bad = bytes.clone();
         bad[8 + 32..8 + 36].copy_from_slice(&u32::MAX.to_le_bytes());
         assert!(Octree::decode(&bad, &scene).unwrap_err().contains("node 0"));
+    }
+
+    #[test]
+    fn a_segment_meets_the_boxes_it_crosses_or_touches_and_no_other() {
+        let s = Segment::new(DVec3::ZERO, DVec3::new(1.0, 1.0, 0.0));
+        assert!(s.meets_box(DVec3::new(0.4, 0.4, -0.1), DVec3::splat(0.6)));
+        assert!(s.meets_box(DVec3::new(1.0, 1.0, -1.0), DVec3::splat(2.0)));
+        assert!(!s.meets_box(DVec3::new(0.6, 0.0, -1.0), DVec3::new(1.0, 0.3, 1.0)));
+        // Flat along z: only boxes spanning its z.
+        assert!(!s.meets_box(DVec3::new(0.0, 0.0, 0.1), DVec3::splat(1.0)));
+        // A point segment.
+        let p = Segment::new(DVec3::ONE, DVec3::ONE);
+        assert!(p.meets_box(DVec3::ZERO, DVec3::ONE));
+        assert!(!p.meets_box(DVec3::ZERO, DVec3::splat(0.999)));
+    }
+
+    #[test]
+    fn the_walk_along_a_segment_finds_the_same_leaves_from_its_start_node() {
+        // A grid of small triangles, split deep, and segments of every
+        // length: the leaves found are those whose grown cube the segment
+        // meets, by brute force over all leaves.
+        let mut boxes = Vec::new();
+        for i in 0..16 {
+            for j in 0..16 {
+                for k in 0..4 {
+                    let lo = DVec3::new(i as f64, j as f64, 4.0 * k as f64) * 0.25;
+                    boxes.push((lo, lo + DVec3::splat(0.1)));
+                }
+            }
+        }
+        let owner = vec![0; boxes.len()];
+        let params = OctreeParams {
+            leaf_triangles: 2,
+            max_depth: 8,
+        };
+        let tree = Skeleton::build(&boxes, &owner, params).unwrap();
+        let mut stack = Vec::new();
+        let grow = 1e-3;
+        for (p, q) in [
+            (DVec3::new(0.1, 0.1, 0.1), DVec3::new(0.12, 0.1, 0.1)),
+            (DVec3::new(0.3, 2.0, 1.0), DVec3::new(3.0, 0.5, 2.0)),
+            (DVec3::new(-1.0, 1.9, 0.5), DVec3::new(1.9, 1.9, 0.5)),
+            (DVec3::new(2.0, 2.0, 2.0), DVec3::new(2.0, 2.0, 2.0)),
+        ] {
+            let segment = Segment::new(p, q);
+            let mut found = Vec::new();
+            tree.leaves_along(&segment, grow, &mut stack, |n| found.push(n));
+            found.sort_unstable();
+            let g = DVec3::splat(grow);
+            let all: Vec<usize> = (0..tree.nodes.len())
+                .filter(|&n| tree.nodes[n].is_leaf())
+                .filter(|&n| segment.meets_box(tree.nodes[n].min - g, tree.nodes[n].max() + g))
+                .collect();
+            assert_eq!(found, all, "{p} {q}");
+        }
     }
 }

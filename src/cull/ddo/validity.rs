@@ -49,7 +49,7 @@
 use glam::DVec3;
 use robust::{Coord3D, orient3d};
 
-use super::octree::{Skeleton, segment_meets_box};
+use super::octree::{Segment, Skeleton};
 use super::regions::Regions;
 
 /// The eyes of a region are widened by this much in slope.
@@ -214,6 +214,8 @@ pub struct Scratch {
     crossing: Vec<u32>,
     candidates: Vec<u32>,
     stack: Vec<u32>,
+    /// The index walk's stack.
+    path: Vec<u32>,
 }
 
 impl Scratch {
@@ -226,6 +228,7 @@ impl Scratch {
             crossing: vec![0; n],
             candidates: Vec::new(),
             stack: Vec::new(),
+            path: Vec::new(),
         }
     }
 
@@ -545,7 +548,8 @@ impl Validator<'_> {
         let crossing_marks = &mut s.crossing;
         let visited = &mut s.visited;
         let mut degenerate = false;
-        self.index.leaves_along(top, bottom, v.m, |leaf| {
+        let segment = Segment::new(top, bottom);
+        self.index.leaves_along(&segment, v.m, &mut s.path, |leaf| {
             for &t in self.index.leaf_triangles(leaf) {
                 // See-through triangles (numbered after the opaque ones)
                 // hide nothing; `visited` doubles as "already tested".
@@ -556,7 +560,7 @@ impl Validator<'_> {
                 // Most triangles near the segment miss even its box: no
                 // need for the exact test.
                 let [blo, bhi] = surfaces.boxes[t as usize];
-                if !segment_meets_box(top, bottom, blo - grow, bhi + grow) {
+                if !segment.meets_box(blo - grow, bhi + grow) {
                     continue;
                 }
                 match crossing(top, bottom, &surfaces.triangles[t as usize]) {
