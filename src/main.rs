@@ -10,6 +10,7 @@ use anyhow::{Context, bail};
 use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
+use pvsd::cull::ddo::OctreeParams;
 use pvsd::cull::ranking::{FrameCost, Ranking};
 use pvsd::cull::{
     AUTO_CHOICE, MethodContext, MethodSpec, Registry, SceneMethods, View, VisibleSet,
@@ -77,6 +78,33 @@ struct BakeArgs {
     /// The bake folder [default: $XDG_CACHE_HOME/pvsd or ~/.cache/pvsd].
     #[arg(long, value_name = "DIR")]
     bake_dir: Option<PathBuf>,
+    #[command(flatten)]
+    octree: OctreeArgs,
+}
+
+/// How the methods that bake a scene cut it.
+#[derive(Args, Debug)]
+struct OctreeArgs {
+    /// `ddo`'s octree splits a node holding more triangles than this (the
+    /// paper's threshold, 16 to 1000000): fewer gives more occluders near
+    /// the geometry for a longer bake and cull; each value is its own bake
+    /// [default: the config's ddo_leaf_triangles, else 256].
+    #[arg(long, value_name = "N", value_parser = leaf_triangles)]
+    ddo_leaf_triangles: Option<OctreeParams>,
+}
+
+fn leaf_triangles(s: &str) -> Result<OctreeParams, String> {
+    let n: usize = s.parse().map_err(|e| format!("{e}"))?;
+    OctreeParams::with_leaf_triangles(n)
+}
+
+impl OctreeArgs {
+    /// Sets what was given on `context`.
+    fn apply(&self, context: &mut MethodContext) {
+        if let Some(params) = self.ddo_leaf_triangles {
+            context.ddo_octree = params;
+        }
+    }
 }
 
 #[derive(Args, Debug)]
@@ -135,6 +163,8 @@ struct EvalArgs {
     /// Write a plot of the trade (cull time against PVS size) as SVG here.
     #[arg(long, value_name = "OUT.svg")]
     svg: Option<PathBuf>,
+    #[command(flatten)]
+    octree: OctreeArgs,
 }
 
 #[derive(Args, Debug)]
@@ -157,6 +187,8 @@ struct ServeArgs {
     /// replica].
     #[arg(long, env = "PVSD_REPLICA", value_name = "NAME")]
     replica: Option<String>,
+    #[command(flatten)]
+    octree: OctreeArgs,
 }
 
 #[derive(Subcommand, Debug)]
@@ -353,6 +385,7 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
     if let Some(dir) = &args.bake_dir {
         context.bake_dir = Some(dir.clone());
     }
+    args.octree.apply(&mut context);
     if let Some(dir) = &context.bake_dir
         && let Err(e) = BakeCache::new(dir).check_writable()
     {
@@ -649,10 +682,11 @@ fn bake(args: BakeArgs) -> anyhow::Result<()> {
         .or_else(BakeCache::default_dir)
         .context("no bake folder: give --bake-dir (neither XDG_CACHE_HOME nor HOME is set)")?;
     let scene = load_scene(&args.scene)?;
-    let context = MethodContext {
+    let mut context = MethodContext {
         bake_dir: Some(dir.clone()),
         ..MethodContext::of_this_machine()
     };
+    args.octree.apply(&mut context);
     let started = std::time::Instant::now();
     let methods = SceneMethods::prepare_with(scene, &Registry::standard(), &context);
     println!(
@@ -738,7 +772,7 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         .iter()
         .map(|m| known_spec(m))
         .collect::<anyhow::Result<Vec<MethodSpec>>>()?;
-    let context = MethodContext {
+    let mut context = MethodContext {
         bake_dir: args.bake_dir.clone().or_else(BakeCache::default_dir),
         frame_cost: FrameCost {
             per_triangle_ns: args.cost_per_triangle_ns,
@@ -746,6 +780,7 @@ fn eval(args: EvalArgs) -> anyhow::Result<()> {
         },
         ..MethodContext::of_this_machine()
     };
+    args.octree.apply(&mut context);
     let methods =
         SceneMethods::prepare_with(load_scene(&args.scene)?, &Registry::standard(), &context);
     if specs.iter().any(|s| s.name == "auto") {

@@ -389,6 +389,74 @@ fn a_killed_bake_leaves_nothing_that_loads_wrong() {
 /// made again; a scene file changed by one byte gets a bake of its own;
 /// two bakers at once and a baker killed mid-way leave only whole bakes.
 #[test]
+fn ddo_leaf_triangles_cuts_a_finer_octree_into_its_own_bake() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("cad.glb");
+    let scene_arg = scene.to_string_lossy().into_owned();
+    let (ok, _, err) = run(&[
+        "gen", "cad", "--cells", "12", "--parts", "20", "-o", &scene_arg,
+    ]);
+    assert!(ok, "{err}");
+    let bakes = dir.path().join("bakes");
+    let bakes_arg = bakes.to_string_lossy().into_owned();
+    let bake = |extra: &[&str]| {
+        let mut args = vec!["bake", "--scene", &scene_arg, "--bake-dir", &bakes_arg];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = run(&args);
+        assert!(ok, "{err}");
+        err
+    };
+    // The nodes of the ddo octree the log says were baked.
+    let nodes = |log: &str| -> usize {
+        let line = log
+            .lines()
+            .find(|l| l.contains("baked directional discretized occluders"))
+            .unwrap_or_else(|| panic!("a ddo bake: {log}"));
+        // Without the log's colours (`ESC [ … m`).
+        let mut plain = String::new();
+        let mut chars = line.chars();
+        while let Some(c) = chars.next() {
+            if c == '\u{1b}' {
+                chars.by_ref().find(|&c| c == 'm');
+            } else {
+                plain.push(c);
+            }
+        }
+        let at = plain.find("nodes=").expect("a node count") + "nodes=".len();
+        plain[at..]
+            .chars()
+            .take_while(char::is_ascii_digit)
+            .collect::<String>()
+            .parse()
+            .unwrap()
+    };
+    let coarse = nodes(&bake(&[]));
+    let fine = nodes(&bake(&["--ddo-leaf-triangles", "16"]));
+    assert!(
+        fine > coarse,
+        "16 triangles a leaf: {fine} nodes, 256: {coarse}"
+    );
+    // Each cut is its own bake, and both stay.
+    let ddo_bakes = std::fs::read_dir(&bakes)
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .path()
+                .to_string_lossy()
+                .contains("-ddo-")
+        })
+        .count();
+    assert_eq!(ddo_bakes, 2);
+    assert!(bake(&["--ddo-leaf-triangles", "16"]).contains("loaded a bake"));
+    let (ok, _, err) = run(&["bake", "--scene", &scene_arg, "--ddo-leaf-triangles", "8"]);
+    assert!(
+        !ok && err.contains("--ddo-leaf-triangles") && err.contains("16 to 1000000"),
+        "{err}"
+    );
+}
+
+#[test]
 fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("cad.glb");

@@ -4,7 +4,9 @@
 mod common;
 
 use glam::DVec3;
-use pvsd::cull::Registry;
+use pvsd::cull::ddo::OctreeParams;
+use pvsd::cull::{MethodContext, Registry, SceneMethods};
+use pvsd::eval::{Contender, WalkKind};
 use pvsd::geom::Camera;
 
 /// Objects from 1e-4 to 1e5 units, points and zero-area triangles, from
@@ -48,4 +50,34 @@ fn a_cad_body_far_from_the_origin_up_close() {
         }
     }
     common::assert_seen(&seen, 0.5);
+}
+
+/// A finer octree (`ddo_leaf_triangles`, here 32 triangles a leaf: more
+/// nodes, more faces near the skin) through the shared check on an orbit
+/// of the CAD body, with every checked option set: zero
+/// misses, as with the default cut.
+#[test]
+fn a_finer_octree_drops_nothing_either() {
+    let registry = Registry::standard();
+    let context = MethodContext {
+        ddo_octree: OctreeParams::with_leaf_triangles(32).unwrap(),
+        disabled: registry
+            .entries()
+            .iter()
+            .map(|e| e.name.to_string())
+            .filter(|m| m != "frustum" && m != "ddo")
+            .collect(),
+        ..common::test_context()
+    };
+    let scene = common::cad_scene(3, [0.0; 3]);
+    let methods = SceneMethods::prepare_with(scene, &registry, &context);
+    assert!(methods.names().contains(&"ddo"), "{:?}", methods.names());
+    common::check_conservative(&methods, &[WalkKind::Orbit], 24, |m| {
+        common::checked_methods(m, &registry)
+            .into_iter()
+            .filter(|(label, ..)| label.starts_with("ddo"))
+            .map(|(label, method, options)| Contender::new(label, method, options).unwrap())
+            .collect()
+    })
+    .unwrap();
 }

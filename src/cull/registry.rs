@@ -17,6 +17,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, Weak};
 
+use super::ddo::OctreeParams;
 use super::device::DeviceQueue;
 use super::dispatch::cull_here;
 use super::frustum::FrustumCulling;
@@ -46,6 +47,9 @@ pub struct MethodContext {
     pub disabled: Vec<String>,
     /// The prices `auto` ranks methods with when a request names none.
     pub frame_cost: FrameCost,
+    /// How `ddo`'s octree is cut: its leaf size is the paper's threshold,
+    /// trading bake and cull time for occluders near the geometry.
+    pub ddo_octree: OctreeParams,
 }
 
 impl Default for MethodContext {
@@ -58,6 +62,7 @@ impl Default for MethodContext {
             gpu: Err("no Vulkan device in this context".into()),
             disabled: Vec::new(),
             frame_cost: FrameCost::default(),
+            ddo_octree: OctreeParams::default(),
         }
     }
 }
@@ -436,6 +441,11 @@ impl SceneMethods {
     /// The prices `auto` ranks with when a request names none.
     pub fn frame_cost(&self) -> FrameCost {
         self.frame_cost
+    }
+
+    /// The context the methods were built in.
+    pub fn context(&self) -> &MethodContext {
+        &self.context
     }
 
     /// The method `auto` answers with at these prices: the ranking's

@@ -180,7 +180,12 @@ pub fn rank_cached(
                 .load_or_build(
                     methods.scene(),
                     "ranking",
-                    &params.cache_key(),
+                    // The methods measured depend on how they were built.
+                    &format!(
+                        "{} ddo leaves {}",
+                        params.cache_key(),
+                        methods.context().ddo_octree.leaf_triangles
+                    ),
                     || rank(methods, params),
                     |r| serde_json::to_vec(r).expect("a ranking is plain data"),
                     |bytes| {

@@ -20,6 +20,7 @@
 //! drain_ms = 0                   # SIGTERM: not ready, serving on this long
 //! shutdown_grace_s = 10          # then: time for requests in flight
 //! replica = "pvsd-0"             # names the replica (x-pvsd-replica header)
+//! ddo_leaf_triangles = 256       # ddo's octree leaves (its own bake each)
 //! json_max_depth = 16            # nesting of a JSON body (413 past it)
 //! json_max_array = 1024          # items of one JSON array (413 past it)
 //! rate_limit_per_s = 200.0       # requests a second per client IP (429
@@ -39,6 +40,7 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::{ConnectionLimits, JsonLimits, Limits, Rate, SessionLimits};
+use crate::cull::ddo::OctreeParams;
 use crate::cull::ranking::{COST_PER_BYTE_NS, COST_PER_TRIANGLE_NS, FrameCost};
 use crate::cull::{MethodContext, Registry};
 use crate::scene::BakeCache;
@@ -94,6 +96,9 @@ pub struct ServeConfig {
     /// This replica's name, sent in every answer's `x-pvsd-replica`
     /// header (`--replica` or `PVSD_REPLICA` win over it).
     pub replica: Option<String>,
+    /// `ddo`'s octree leaves hold at most this many triangles (each value
+    /// is its own bake).
+    pub ddo_leaf_triangles: Option<usize>,
     /// Most nested arrays and objects in a JSON body.
     pub json_max_depth: Option<usize>,
     /// Most items in one array of a JSON body.
@@ -186,6 +191,9 @@ impl ServeConfig {
                 return Err(format!("{}: {v} is not {}", range.key, range.expected()));
             }
         }
+        if let Some(n) = cfg.ddo_leaf_triangles {
+            OctreeParams::with_leaf_triangles(n).map_err(|e| format!("ddo_leaf_triangles: {e}"))?;
+        }
         if cfg.body_limit_bytes == Some(0) {
             return Err("body_limit_bytes must be > 0".into());
         }
@@ -245,6 +253,10 @@ impl ServeConfig {
                     .unwrap_or(COST_PER_TRIANGLE_NS.default),
                 per_byte_ns: self.cost_per_byte_ns.unwrap_or(COST_PER_BYTE_NS.default),
             },
+            ddo_octree: self
+                .ddo_leaf_triangles
+                .and_then(|n| OctreeParams::with_leaf_triangles(n).ok())
+                .unwrap_or_default(),
             ..MethodContext::of_this_machine()
         }
     }
@@ -315,6 +327,22 @@ mod tests {
         let context = c.method_context();
         assert_eq!(context.bake_dir, Some(dir.path().join("bakes")));
         assert_eq!(context.disabled, vec!["horizon".to_string()]);
+        assert_eq!(context.ddo_octree, OctreeParams::default());
+    }
+
+    #[test]
+    fn ddo_leaf_triangles_is_read_and_checked() {
+        let c = ServeConfig::from_toml("ddo_leaf_triangles = 128\n", Path::new(".")).unwrap();
+        assert_eq!(c.method_context().ddo_octree.leaf_triangles, 128);
+        for bad in ["0", "15", "1000001"] {
+            let e =
+                ServeConfig::from_toml(&format!("ddo_leaf_triangles = {bad}\n"), Path::new("."))
+                    .unwrap_err();
+            assert!(
+                e.starts_with("ddo_leaf_triangles: ") && e.contains(bad),
+                "{bad}: {e}"
+            );
+        }
     }
 
     #[test]

@@ -159,7 +159,7 @@ fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
         return Err("the scene is a height field of solids on a ground: horizon's prisms serve it, DDO masks would not pay".into());
     }
     let scene = p.scene().clone();
-    let params = OctreeParams::default();
+    let params = p.context().ddo_octree;
     let tree = match &p.context().bake_dir {
         Some(dir) => bake::bake_cached(&scene, params, &BakeCache::new(dir))?,
         None => bake(&scene, params)?,

@@ -23,6 +23,28 @@ pub struct OctreeParams {
     pub max_depth: u32,
 }
 
+impl OctreeParams {
+    /// The leaf sizes a user may ask for: below 16 triangles a leaf's faces
+    /// add little but nodes, and the bake grows with them.
+    pub const LEAF_TRIANGLES: std::ops::RangeInclusive<usize> = 16..=1_000_000;
+
+    /// The default cut with leaves of at most `n` triangles (the paper's
+    /// threshold), or why `n` is refused.
+    pub fn with_leaf_triangles(n: usize) -> Result<OctreeParams, String> {
+        if !Self::LEAF_TRIANGLES.contains(&n) {
+            return Err(format!(
+                "{n} is not a whole number from {} to {}",
+                Self::LEAF_TRIANGLES.start(),
+                Self::LEAF_TRIANGLES.end()
+            ));
+        }
+        Ok(OctreeParams {
+            leaf_triangles: n,
+            ..OctreeParams::default()
+        })
+    }
+}
+
 impl Default for OctreeParams {
     fn default() -> Self {
         OctreeParams {
