@@ -3,6 +3,7 @@
 
 mod common;
 
+use std::path::PathBuf;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -384,20 +385,33 @@ fn a_killed_bake_leaves_nothing_that_loads_wrong() {
     }
 }
 
-/// The ddo bake through `pvsd bake` on a small CAD body: made once and
-/// loaded after; a flipped byte is refused by its checksum and the bake
-/// made again; a scene file changed by one byte gets a bake of its own;
-/// two bakers at once and a baker killed mid-way leave only whole bakes.
-#[test]
-fn ddo_leaf_triangles_cuts_a_finer_octree_into_its_own_bake() {
+/// A small CAD body written by `pvsd gen cad` into a fresh folder, with a
+/// bake folder beside it: (folder, scene, bake folder).
+fn small_cad() -> (tempfile::TempDir, PathBuf, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("cad.glb");
-    let scene_arg = scene.to_string_lossy().into_owned();
     let (ok, _, err) = run(&[
-        "gen", "cad", "--cells", "12", "--parts", "20", "-o", &scene_arg,
+        "gen",
+        "cad",
+        "--cells",
+        "12",
+        "--parts",
+        "20",
+        "-o",
+        &scene.to_string_lossy(),
     ]);
     assert!(ok, "{err}");
     let bakes = dir.path().join("bakes");
+    (dir, scene, bakes)
+}
+
+/// `--ddo-leaf-triangles` cuts a finer octree (more nodes) into a bake of
+/// its own beside the default one, loaded again the next time; a size
+/// below the range is refused naming the flag.
+#[test]
+fn ddo_leaf_triangles_cuts_a_finer_octree_into_its_own_bake() {
+    let (_dir, scene, bakes) = small_cad();
+    let scene_arg = scene.to_string_lossy().into_owned();
     let bakes_arg = bakes.to_string_lossy().into_owned();
     let bake = |extra: &[&str]| {
         let mut args = vec!["bake", "--scene", &scene_arg, "--bake-dir", &bakes_arg];
@@ -456,16 +470,14 @@ fn ddo_leaf_triangles_cuts_a_finer_octree_into_its_own_bake() {
     );
 }
 
+/// The ddo bake through `pvsd bake` on a small CAD body: made once and
+/// loaded after; a flipped byte is refused by its checksum and the bake
+/// made again; a scene file changed by one byte gets a bake of its own;
+/// two bakers at once and a baker killed mid-way leave only whole bakes.
 #[test]
 fn ddo_bakes_are_whole_checked_and_named_by_the_scene() {
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("cad.glb");
+    let (_dir, scene, bakes) = small_cad();
     let scene_arg = scene.to_string_lossy().into_owned();
-    let (ok, _, err) = run(&[
-        "gen", "cad", "--cells", "12", "--parts", "20", "-o", &scene_arg,
-    ]);
-    assert!(ok, "{err}");
-    let bakes = dir.path().join("bakes");
     let bakes_arg = bakes.to_string_lossy().into_owned();
     let args = ["bake", "--scene", &scene_arg, "--bake-dir", &bakes_arg];
     // Whether the log has a line about the ddo bake saying `what`.
