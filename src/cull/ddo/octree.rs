@@ -251,16 +251,43 @@ impl Skeleton {
             start = node.children + k;
         }
         stack.clear();
-        stack.push(start);
+        let root = &self.nodes[start as usize];
+        if segment.meets_box(root.min - g, root.max() + g) {
+            stack.push(start);
+        }
+        // Every node on the stack meets the segment. The eight children's
+        // slabs are two a side along each axis: taken from the lowest and
+        // highest child (whose bounds are every child's, bit for bit),
+        // they decide each child as `meets_box` on its own box would.
         while let Some(n) = stack.pop() {
             let node = &self.nodes[n as usize];
-            if !segment.meets_box(node.min - g, node.max() + g) {
-                continue;
-            }
             if node.is_leaf() {
                 visit(n as usize);
-            } else {
-                stack.extend((0..8).map(|k| node.children + k));
+                continue;
+            }
+            let (low, high) = (
+                &self.nodes[node.children as usize],
+                &self.nodes[node.children as usize + 7],
+            );
+            let (lo, hi) = ([low.min - g, high.min - g], [low.max() + g, high.max() + g]);
+            let mut slabs = [[None; 2]; 3];
+            for (axis, halves) in slabs.iter_mut().enumerate() {
+                for (side, slab) in halves.iter_mut().enumerate() {
+                    *slab = segment.slab(axis, lo[side][axis], hi[side][axis]);
+                }
+            }
+            for k in 0..8u32 {
+                let mut t = [0.0f64, 1.0f64];
+                let met = (0..3).all(|axis| match slabs[axis][(k >> axis & 1) as usize] {
+                    Some(s) => {
+                        t = [t[0].max(s[0]), t[1].min(s[1])];
+                        true
+                    }
+                    None => false,
+                });
+                if met && Segment::meets(t) {
+                    stack.push(node.children + k);
+                }
             }
         }
     }
@@ -421,19 +448,32 @@ impl Segment {
     /// of the quotient, and the `1e-9` slack on the segment's parameter is
     /// seven orders above that).
     pub fn meets_box(&self, lo: DVec3, hi: DVec3) -> bool {
-        let (mut t0, mut t1) = (0.0f64, 1.0f64);
+        let mut t = [0.0f64, 1.0f64];
         for k in 0..3 {
-            if self.inv[k].is_infinite() {
-                if self.p[k] < lo[k] || self.p[k] > hi[k] {
-                    return false;
-                }
-                continue;
+            match self.slab(k, lo[k], hi[k]) {
+                Some(s) => t = [t[0].max(s[0]), t[1].min(s[1])],
+                None => return false,
             }
-            let (a, b) = ((lo[k] - self.p[k]) * self.inv[k], (hi[k] - self.p[k]) * self.inv[k]);
-            t0 = t0.max(a.min(b));
-            t1 = t1.min(a.max(b));
         }
-        t0 <= t1 + 1e-9
+        Segment::meets(t)
+    }
+
+    /// The parameters `[t₀, t₁]` of its line between the planes `lo` and
+    /// `hi` along `axis` (unbounded when it runs parallel to them), or
+    /// `None` when it runs parallel outside them.
+    fn slab(&self, axis: usize, lo: f64, hi: f64) -> Option<[f64; 2]> {
+        let (p, inv) = (self.p[axis], self.inv[axis]);
+        if inv.is_infinite() {
+            return (lo <= p && p <= hi).then_some([f64::NEG_INFINITY, f64::INFINITY]);
+        }
+        let (a, b) = ((lo - p) * inv, (hi - p) * inv);
+        Some([a.min(b), a.max(b)])
+    }
+
+    /// Whether the parameters `t` left by the slabs are a piece of the
+    /// segment, with the slack the callers rely on.
+    fn meets(t: [f64; 2]) -> bool {
+        t[0] <= t[1] + 1e-9
     }
 }
 

@@ -76,6 +76,10 @@ pub fn margin(extent: f64) -> f64 {
     1e-9 * extent + 1e-30
 }
 
+/// In [`Surfaces::neighbours`]: the edge is not shared by exactly two
+/// triangles.
+const SHARED: u32 = u32::MAX;
+
 /// The opaque static triangles of a scene with their shared edges.
 pub struct Surfaces {
     /// Triangles, scene-local, exactly the scene's `f32` corners.
@@ -86,8 +90,10 @@ pub struct Surfaces {
     edge_start: Vec<u32>,
     /// The triangles on each edge.
     edge_triangles: Vec<u32>,
-    /// Per edge, its two corners.
-    edge_ends: Vec<[DVec3; 2]>,
+    /// Per triangle and edge, the one other triangle on it, or [`SHARED`]
+    /// when the edge has none or more than one (then `edge_triangles`
+    /// says which): the walks' common case without two lookups.
+    neighbours: Vec<[u32; 3]>,
     /// Per triangle, its box.
     boxes: Vec<[DVec3; 2]>,
     /// Per triangle, its connected set over the whole scene (joined as in
@@ -105,7 +111,6 @@ impl Surfaces {
         let key = |p: DVec3| p.to_array().map(f64::to_bits);
         let mut vertex: FxHashMap<[u64; 3], u32> = FxHashMap::default();
         let mut edge: FxHashMap<(u32, u32), u32> = FxHashMap::default();
-        let mut edge_ends = Vec::new();
         let mut edges = Vec::with_capacity(triangles.len());
         let mut counts: Vec<u32> = Vec::new();
         for t in &triangles {
@@ -119,7 +124,6 @@ impl Surfaces {
                 let k = (a.min(b), a.max(b));
                 let n = edge.len() as u32;
                 let e = *edge.entry(k).or_insert_with(|| {
-                    edge_ends.push([t[i], t[(i + 1) % 3]]);
                     counts.push(0);
                     n
                 });
@@ -143,6 +147,20 @@ impl Surfaces {
                 fill[e as usize] += 1;
             }
         }
+        let neighbours = edges
+            .iter()
+            .enumerate()
+            .map(|(t, es)| {
+                es.map(|e| {
+                    let on = &edge_triangles[edge_start[e as usize] as usize..edge_start[e as usize + 1] as usize];
+                    match *on {
+                        [a, b] if a as usize == t => b,
+                        [a, b] if b as usize == t => a,
+                        _ => SHARED,
+                    }
+                })
+            })
+            .collect();
         let boxes: Vec<[DVec3; 2]> = triangles
             .iter()
             .map(|t| [t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2])])
@@ -156,7 +174,7 @@ impl Surfaces {
             edges,
             edge_start,
             edge_triangles,
-            edge_ends,
+            neighbours,
         }
     }
 
@@ -609,17 +627,23 @@ impl Validator<'_> {
             let (mut parity, mut size, mut ok) = (0u32, 0usize, true);
             while let Some(t) = s.stack.pop() {
                 size += 1;
-                let q = local(t);
-                if size > MAX_COMPONENT || v.may_touch_caps(&q) {
+                let corners = local(t);
+                if size > MAX_COMPONENT || v.may_touch_caps(&corners) {
                     ok = false;
                     break;
                 }
                 if s.crossing[t as usize] == crossing_stamp {
                     parity ^= 1;
                 }
-                for &e in &surfaces.edges[t as usize] {
-                    let on = surfaces.on_edge(e);
-                    let mut inside = 0;
+                for (i, &e) in surfaces.edges[t as usize].iter().enumerate() {
+                    // Most edges have one other triangle: `t` itself is
+                    // counted without looking the edge up.
+                    let other = surfaces.neighbours[t as usize][i];
+                    let (on, mut inside) = if other == SHARED {
+                        (surfaces.on_edge(e), 0)
+                    } else {
+                        (std::slice::from_ref(&other), 1)
+                    };
                     for &n in on {
                         // A neighbour this walk already took meets `V`: no
                         // need to test it again from its other edges.
@@ -636,12 +660,9 @@ impl Validator<'_> {
                             }
                         }
                     }
-                    if inside % 2 == 1 {
-                        let [p, q] = surfaces.edge_ends[e as usize].map(|p| face.local(p));
-                        if v.may_meet_segment(p, q) {
-                            ok = false;
-                            break;
-                        }
+                    if inside % 2 == 1 && v.may_meet_segment(corners[i], corners[(i + 1) % 3]) {
+                        ok = false;
+                        break;
                     }
                 }
                 if !ok {
@@ -748,6 +769,45 @@ mod tests {
             assert!(!face_valid(wall(-0.5, 24, &[]), regions, 0.1, 0.1), "{regions:?}");
             // Behind the face.
             assert!(!face_valid(wall(-0.75, 24, &[]), regions, 0.1, 0.1), "{regions:?}");
+        }
+    }
+
+    #[test]
+    fn an_edge_of_three_triangles_is_a_boundary_and_a_shared_one_is_not() {
+        // A fin on the grid edge from (0, 0) to (¼, 0) of a whole wall:
+        // three triangles meet there, an odd number, so inside `V` it is
+        // a boundary edge (the walk looks it up in full); the wall's
+        // other edges each have one other triangle.
+        let fin = |x: f64, y: f64| {
+            [
+                DVec3::new(x, y, 0.25),
+                DVec3::new(x + 0.25, y, 0.25),
+                DVec3::new(x + 0.125, y, 0.5),
+            ]
+        };
+        let mut finned = wall(0.25, 24, &[]);
+        finned.push(fin(0.0, 0.0));
+        let surfaces = Surfaces::new(finned.clone());
+        let shared = |t: usize| surfaces.neighbours[t].iter().filter(|&&n| n == SHARED).count();
+        let fin_index = finned.len() - 1;
+        assert_eq!(shared(fin_index), 3, "the fin's own edges: one of three, two of one");
+        let on_fin_edge = (0..fin_index).filter(|&t| shared(t) > 0 && finned[t].iter().all(|p| p.z == 0.25));
+        // The wall's border triangles have edges of one too; the two by
+        // the fin are the ones inside.
+        assert_eq!(on_fin_edge.filter(|&t| finned[t].iter().any(|p| p.x.abs() < 0.3 && p.y.abs() < 0.3)).count(), 2);
+        for t in 0..fin_index {
+            for (i, &n) in surfaces.neighbours[t].iter().enumerate() {
+                if n != SHARED {
+                    assert!(surfaces.neighbours[n as usize].contains(&(t as u32)), "{t} edge {i}");
+                }
+            }
+        }
+        for regions in Regions::ALL {
+            assert!(!face_valid(finned.clone(), regions, 0.1, 0.1), "{regions:?}");
+            // The same fin far to the side, outside every ray.
+            let mut far = wall(0.25, 24, &[]);
+            far.push(fin(-3.0, 2.75));
+            assert!(face_valid(far, regions, 0.1, 0.1), "{regions:?}");
         }
     }
 
