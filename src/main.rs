@@ -381,7 +381,9 @@ fn serve(args: ServeArgs) -> anyhow::Result<()> {
         check_replica_name(name).map_err(|e| anyhow::anyhow!("--replica: {e}"))?;
     }
     let paths: Vec<PathBuf> = config.scenes.iter().chain(&args.scenes).cloned().collect();
-    let mut context = config.method_context();
+    let mut context = config
+        .method_context()
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
     if let Some(dir) = &args.bake_dir {
         context.bake_dir = Some(dir.clone());
     }

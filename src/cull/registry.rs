@@ -68,6 +68,16 @@ impl Default for MethodContext {
 }
 
 impl MethodContext {
+    /// The context with `ddo`'s octree split above `n` triangles a leaf,
+    /// or why `n` is out of range (what a configuration file or a flag
+    /// gives is checked here, so no caller holds a method's parameters).
+    pub fn with_ddo_leaf_triangles(self, n: usize) -> Result<MethodContext, String> {
+        Ok(MethodContext {
+            ddo_octree: OctreeParams::with_leaf_triangles(n)?,
+            ..self
+        })
+    }
+
     /// What this machine offers the methods: its Vulkan device if it has
     /// one (opened once per process), nothing baked on disk, every method
     /// on. The server starts from it (adding its configuration), and so do

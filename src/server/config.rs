@@ -40,7 +40,6 @@ use std::time::Duration;
 use serde::Deserialize;
 
 use super::{ConnectionLimits, JsonLimits, Limits, Rate, SessionLimits};
-use crate::cull::ddo::OctreeParams;
 use crate::cull::ranking::{COST_PER_BYTE_NS, COST_PER_TRIANGLE_NS, FrameCost};
 use crate::cull::{MethodContext, Registry};
 use crate::scene::BakeCache;
@@ -192,7 +191,9 @@ impl ServeConfig {
             }
         }
         if let Some(n) = cfg.ddo_leaf_triangles {
-            OctreeParams::with_leaf_triangles(n).map_err(|e| format!("ddo_leaf_triangles: {e}"))?;
+            MethodContext::default()
+                .with_ddo_leaf_triangles(n)
+                .map_err(|e| format!("ddo_leaf_triangles: {e}"))?;
         }
         if cfg.body_limit_bytes == Some(0) {
             return Err("body_limit_bytes must be > 0".into());
@@ -242,9 +243,11 @@ impl ServeConfig {
 
     /// The context the server prepares its scenes in: this machine's,
     /// with the config's bake folder (else the user's cache folder,
-    /// [`BakeCache::default_dir`]) and disabled methods.
-    pub fn method_context(&self) -> MethodContext {
-        MethodContext {
+    /// [`BakeCache::default_dir`]), disabled methods, frame costs and
+    /// `ddo`'s leaf size; an error names a value out of range (a config
+    /// read from TOML was checked already; one built in code may not be).
+    pub fn method_context(&self) -> Result<MethodContext, String> {
+        let context = MethodContext {
             bake_dir: self.bake_dir.clone().or_else(BakeCache::default_dir),
             disabled: self.disabled_methods.clone(),
             frame_cost: FrameCost {
@@ -253,11 +256,13 @@ impl ServeConfig {
                     .unwrap_or(COST_PER_TRIANGLE_NS.default),
                 per_byte_ns: self.cost_per_byte_ns.unwrap_or(COST_PER_BYTE_NS.default),
             },
-            ddo_octree: self
-                .ddo_leaf_triangles
-                .and_then(|n| OctreeParams::with_leaf_triangles(n).ok())
-                .unwrap_or_default(),
             ..MethodContext::of_this_machine()
+        };
+        match self.ddo_leaf_triangles {
+            Some(n) => context
+                .with_ddo_leaf_triangles(n)
+                .map_err(|e| format!("ddo_leaf_triangles: {e}")),
+            None => Ok(context),
         }
     }
 
@@ -324,16 +329,26 @@ mod tests {
         assert_eq!(c.scenes, vec![dir.path().join("a.glb")]);
         assert_eq!(c.limits().request_timeout, Duration::from_millis(50));
         assert_eq!(c.limits().body_bytes, Limits::default().body_bytes);
-        let context = c.method_context();
+        let context = c.method_context().unwrap();
         assert_eq!(context.bake_dir, Some(dir.path().join("bakes")));
         assert_eq!(context.disabled, vec!["horizon".to_string()]);
-        assert_eq!(context.ddo_octree, OctreeParams::default());
+        assert_eq!(context.ddo_octree, MethodContext::default().ddo_octree);
     }
 
     #[test]
     fn ddo_leaf_triangles_is_read_and_checked() {
         let c = ServeConfig::from_toml("ddo_leaf_triangles = 128\n", Path::new(".")).unwrap();
-        assert_eq!(c.method_context().ddo_octree.leaf_triangles, 128);
+        assert_eq!(c.method_context().unwrap().ddo_octree.leaf_triangles, 128);
+        // A config built in code is checked when it makes the context.
+        let built = ServeConfig {
+            ddo_leaf_triangles: Some(8),
+            ..ServeConfig::default()
+        };
+        let e = built.method_context().unwrap_err();
+        assert!(
+            e.starts_with("ddo_leaf_triangles: ") && e.contains('8'),
+            "{e}"
+        );
         for bad in ["0", "15", "1000001"] {
             let e =
                 ServeConfig::from_toml(&format!("ddo_leaf_triangles = {bad}\n"), Path::new("."))
