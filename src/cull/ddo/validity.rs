@@ -408,7 +408,12 @@ fn triangle_meets_box(q: &[DVec3; 3], lo: DVec3, hi: DVec3) -> bool {
     if tlo.cmpgt(hi).any() || thi.cmplt(lo).any() {
         return false;
     }
-    let mut poly: Vec<DVec3> = q.to_vec();
+    // Clipped by six planes a triangle keeps at most nine corners; should
+    // rounding ever make more, the triangle is taken to meet the box
+    // (the answer that never makes a face valid).
+    const MAX: usize = 16;
+    let (mut poly, mut len) = ([DVec3::ZERO; MAX], 3);
+    poly[..3].copy_from_slice(q);
     for axis in 0..3 {
         for (bound, keep_above) in [(lo[axis], true), (hi[axis], false)] {
             let inside = |p: &DVec3| {
@@ -418,21 +423,26 @@ fn triangle_meets_box(q: &[DVec3; 3], lo: DVec3, hi: DVec3) -> bool {
                     p[axis] <= bound
                 }
             };
-            let mut next = Vec::with_capacity(poly.len() + 2);
-            for i in 0..poly.len() {
-                let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+            let (mut next, mut kept) = ([DVec3::ZERO; MAX], 0);
+            for i in 0..len {
+                if kept + 2 > MAX {
+                    return true;
+                }
+                let (a, b) = (poly[i], poly[(i + 1) % len]);
                 if inside(&a) {
-                    next.push(a);
+                    next[kept] = a;
+                    kept += 1;
                 }
                 if inside(&a) != inside(&b) {
                     let s = (bound - a[axis]) / (b[axis] - a[axis]);
                     let mut x = a + (b - a) * s;
                     x[axis] = bound;
-                    next.push(x);
+                    next[kept] = x;
+                    kept += 1;
                 }
             }
-            poly = next;
-            if poly.is_empty() {
+            (poly, len) = (next, kept);
+            if len == 0 {
                 return false;
             }
         }
@@ -606,7 +616,10 @@ impl Validator<'_> {
         // theirs. A triangle stamped by an earlier walk belongs to a
         // component already judged not to separate.
         let crossing_stamp = stamp;
-        let local = |t: u32| surfaces.triangles[t as usize].map(|p| face.local(p));
+        let local = |t: u32| {
+            let [a, b, c] = &surfaces.triangles[t as usize];
+            [face.local(*a), face.local(*b), face.local(*c)]
+        };
         let seeds = std::mem::take(&mut s.candidates);
         let mut found = false;
         for &seed in &seeds {
@@ -775,6 +788,24 @@ mod tests {
             // Behind the face.
             assert!(!face_valid(wall(-0.75, 24, &[]), regions, 0.1, 0.1), "{regions:?}");
         }
+    }
+
+    #[test]
+    fn a_triangle_meets_a_box_only_where_it_reaches_inside() {
+        let (lo, hi) = (DVec3::ZERO, DVec3::ONE);
+        // Through the box, a corner inside, and one wholly inside.
+        let through = [DVec3::new(-1.0, 0.5, 0.5), DVec3::new(2.0, 0.4, 0.5), DVec3::new(0.5, 0.5, 3.0)];
+        assert!(triangle_meets_box(&through, lo, hi));
+        let corner = [DVec3::splat(0.9), DVec3::new(3.0, 0.9, 0.9), DVec3::new(0.9, 3.0, 0.9)];
+        assert!(triangle_meets_box(&corner, lo, hi));
+        let inside = [DVec3::splat(0.1), DVec3::splat(0.2), DVec3::new(0.1, 0.2, 0.3)];
+        assert!(triangle_meets_box(&inside, lo, hi));
+        // Its box overlaps the box's, but the triangle passes by a corner.
+        let past = [DVec3::new(2.7, -0.5, 0.5), DVec3::new(-0.5, 2.7, 0.5), DVec3::new(2.7, 2.7, 0.5)];
+        assert!(!triangle_meets_box(&past, lo, hi));
+        // Cut by all six planes: a large triangle across the box's middle.
+        let big = [DVec3::new(-5.0, -5.0, 0.5), DVec3::new(9.0, 0.5, -4.0), DVec3::new(0.5, 9.0, 6.0)];
+        assert!(triangle_meets_box(&big, lo, hi));
     }
 
     #[test]
