@@ -464,7 +464,8 @@ impl Segment {
     fn slab(&self, axis: usize, lo: f64, hi: f64) -> Option<[f64; 2]> {
         let (p, inv) = (self.p[axis], self.inv[axis]);
         if inv.is_infinite() {
-            return (lo <= p && p <= hi).then_some([f64::NEG_INFINITY, f64::INFINITY]);
+            // Written as a test for outside, so that a NaN counts as inside.
+            return (!(p < lo || p > hi)).then_some([f64::NEG_INFINITY, f64::INFINITY]);
         }
         let (a, b) = ((lo - p) * inv, (hi - p) * inv);
         Some([a.min(b), a.max(b)])
