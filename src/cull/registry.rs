@@ -69,8 +69,8 @@ impl Default for MethodContext {
 
 impl MethodContext {
     /// The context with `ddo`'s octree split above `n` triangles a leaf,
-    /// or why `n` is out of range (what a configuration file or a flag
-    /// gives is checked here, so no caller holds a method's parameters).
+    /// or why `n` is out of range: the server's configuration checks its
+    /// value here, so `server/` holds no method's parameter types.
     pub fn with_ddo_leaf_triangles(self, n: usize) -> Result<MethodContext, String> {
         Ok(MethodContext {
             ddo_octree: OctreeParams::with_leaf_triangles(n)?,
