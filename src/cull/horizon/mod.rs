@@ -591,7 +591,6 @@ impl CullMethod for HorizonCulling {
         state.masks.clear();
         state.pending.clear();
         let lod = state.areas || state.min_area > 0.0;
-        let objects = self.scene.objects();
         // The empty horizon hides nothing: the root is not hidden at 0 masks.
         let root = Pending {
             index: 0,
@@ -696,7 +695,11 @@ impl CullMethod for HorizonCulling {
                         frame,
                         masks,
                     } = state.pending[ev.index() as usize];
-                    let id = objects[index as usize].id;
+                    // The quadtree holds ids, and objects are indexed by
+                    // id: reading the object back (88 bytes, far from the
+                    // packed boxes) was a cache miss a visible object in a
+                    // server of many sessions.
+                    let id = index;
                     let bounds = &self.bounds[index as usize];
                     if masks != masks_added && state.horizon.hides_frame(frame) {
                         continue;
