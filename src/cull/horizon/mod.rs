@@ -697,8 +697,8 @@ impl CullMethod for HorizonCulling {
                     } = state.pending[ev.index() as usize];
                     // The quadtree holds ids, and objects are indexed by
                     // id: reading the object back (88 bytes, far from the
-                    // packed boxes) was a cache miss a visible object in a
-                    // server of many sessions.
+                    // packed boxes) was a cache miss for each visible
+                    // object in a server of many sessions.
                     let id = index;
                     let bounds = &self.bounds[index as usize];
                     if masks != masks_added && state.horizon.hides_frame(frame) {
