@@ -71,6 +71,41 @@ fn answer(methods: &SceneMethods, spec: &str, cam: Camera) -> Vec<u32> {
     out.ids().to_vec()
 }
 
+#[test]
+fn culls_with_other_column_counts_in_turn_answer_as_alone() {
+    // One method lends its sweep buffers to every client: a 64-column and
+    // a 1024-column client in turns must answer as each does on a method
+    // of its own.
+    let scene = city_scene(300, 4, [0.0; 3]);
+    let shared = common::prepare(scene.clone());
+    let params = pvsd::eval::WalkParams {
+        kind: WalkKind::Street,
+        frames: 12,
+        ..Default::default()
+    };
+    let cams = pvsd::eval::walk(&scene, &params).unwrap();
+    let mut in_turns = Vec::new();
+    for &cam in &cams {
+        for spec in ["horizon:columns=64", "horizon"] {
+            in_turns.push(answer(&shared, spec, cam));
+        }
+    }
+    let (coarse, fine) = (common::prepare(scene.clone()), common::prepare(scene));
+    let alone: Vec<Vec<u32>> = cams
+        .iter()
+        .flat_map(|&cam| {
+            [
+                answer(&coarse, "horizon:columns=64", cam),
+                answer(&fine, "horizon", cam),
+            ]
+        })
+        .collect();
+    assert_eq!(in_turns, alone);
+    // The coarse horizon hides less somewhere on the walk, so the two
+    // clients really do sweep with different columns.
+    assert!(in_turns.chunks(2).any(|p| p[0].len() > p[1].len()));
+}
+
 /// Every method's answer for `cam` holds every truth-visible object
 /// ([`common::check_camera`]); returns how many objects the truth saw.
 fn check_camera(methods: &SceneMethods, cam: Camera) -> usize {

@@ -67,7 +67,7 @@ mod tree;
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 
 use glam::DVec3;
 
@@ -151,6 +151,10 @@ pub struct HorizonCulling {
     /// Every object's box, by object index: the sweep reads thousands a
     /// frame, and packed they stay in cache where the objects do not.
     bounds: Vec<Aabb>,
+    /// Sweep buffers no cull is using, the last returned on top: a cull
+    /// takes the warmest and gives it back, so there are as many as culls
+    /// ever ran at once (the server's worker threads, for an inline method).
+    spare: Mutex<Vec<SweepBuffers>>,
 }
 
 impl HorizonCulling {
@@ -167,6 +171,7 @@ impl HorizonCulling {
             bounds: scene.objects().iter().map(|o| o.bounds).collect(),
             scene,
             prisms,
+            spare: Mutex::new(Vec::new()),
         }
     }
 
@@ -181,16 +186,23 @@ impl HorizonCulling {
     }
 }
 
-/// A client's state: its options, and the buffers one sweep needs (kept
-/// between frames so a session allocates nothing per frame).
+/// A client's state: its options. A sweep keeps nothing from one frame to
+/// the next, so the buffers it needs ([`SweepBuffers`], 42 KB on the 10k
+/// city street walk) are not the client's but lent by the method for one
+/// cull: a server with thousands of sessions holds as many sets as it runs
+/// culls at once, not one a session.
 pub struct HorizonState {
     areas: bool,
     min_area: f64,
+    columns: usize,
+}
+
+/// The buffers one sweep needs, kept between frames so that culling
+/// allocates nothing once warm.
+struct SweepBuffers {
     horizon: Horizon,
     /// A bit per object, set once it is tested this frame (§3.3's stamps,
-    /// cleared each frame). Bits, not frame numbers: a server holds a state
-    /// per session, and a frame number an object took 40 KB of each on the
-    /// 10k city, 1.25 KB as bits.
+    /// cleared each frame).
     tested: Vec<u64>,
     queue: BinaryHeap<Event>,
     masks: Vec<Mask>,
@@ -199,6 +211,30 @@ pub struct HorizonState {
     /// is tested again only if a mask was added since), the frame has not
     /// changed.
     pending: Vec<Pending>,
+}
+
+impl SweepBuffers {
+    fn new() -> SweepBuffers {
+        SweepBuffers {
+            horizon: Horizon::new(COLUMNS.default),
+            tested: Vec::new(),
+            queue: BinaryHeap::new(),
+            masks: Vec::new(),
+            pending: Vec::new(),
+        }
+    }
+
+    /// Emptied for a sweep with `columns` columns over `objects` objects
+    /// (sessions with other column counts share them without allocating,
+    /// once they are as large as the largest).
+    fn fit(&mut self, columns: usize, objects: usize) {
+        self.horizon.set_columns(columns);
+        self.tested.clear();
+        self.tested.resize(objects.div_ceil(64), 0);
+        self.queue.clear();
+        self.masks.clear();
+        self.pending.clear();
+    }
 }
 
 /// A cell or object in the queue and its frame (`None`: it cannot be
@@ -544,11 +580,7 @@ impl CullMethod for HorizonCulling {
         Ok(HorizonState {
             areas,
             min_area,
-            horizon: Horizon::new(columns),
-            tested: vec![0; self.scene.objects().len().div_ceil(64)],
-            queue: BinaryHeap::new(),
-            masks: Vec::new(),
-            pending: Vec::new(),
+            columns,
         })
     }
 
@@ -556,13 +588,8 @@ impl CullMethod for HorizonCulling {
         state.min_area == 0.0
     }
 
-    fn state_bytes(&self, state: &HorizonState) -> usize {
+    fn state_bytes(&self, _state: &HorizonState) -> usize {
         std::mem::size_of::<HorizonState>()
-            + state.horizon.heap_bytes()
-            + state.tested.capacity() * std::mem::size_of::<u64>()
-            + state.queue.capacity() * std::mem::size_of::<Event>()
-            + state.masks.capacity() * std::mem::size_of::<Mask>()
-            + state.pending.capacity() * std::mem::size_of::<Pending>()
     }
 
     /// Dynamic boxes join the sweep as events at their near depth, so only
@@ -576,21 +603,36 @@ impl CullMethod for HorizonCulling {
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
+        let spare = || self.spare.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut buffers = spare().pop().unwrap_or_else(SweepBuffers::new);
+        buffers.fit(state.columns, self.scene.objects().len());
+        let counters = self.sweep(view, state, &mut buffers, out, occludees);
+        spare().push(buffers);
+        Ok(counters)
+    }
+}
+
+impl HorizonCulling {
+    /// One view's sweep with `options`, in emptied `state` buffers.
+    fn sweep(
+        &self,
+        view: &View,
+        options: &HorizonState,
+        state: &mut SweepBuffers,
+        out: &mut VisibleSet,
+        occludees: &mut Occludees,
+    ) -> CullCounters {
         let mut counters = CullCounters {
             nodes_tested: 0,
             in_frustum: InFrustum::Unknown,
         };
         let cells = self.quadtree.cells();
         if cells.is_empty() {
-            return Ok(counters);
+            return counters;
         }
         let sweep = Sweep::new(view, self.prisms.ground());
         state.horizon.reset(sweep.x0, sweep.x1);
-        state.tested.fill(0);
-        state.queue.clear();
-        state.masks.clear();
-        state.pending.clear();
-        let lod = state.areas || state.min_area > 0.0;
+        let lod = options.areas || options.min_area > 0.0;
         // The empty horizon hides nothing: the root is not hidden at 0 masks.
         let root = Pending {
             index: 0,
@@ -707,8 +749,8 @@ impl CullMethod for HorizonCulling {
                     let area =
                         lod.then(|| area_bound(view, &sweep, &state.horizon, bounds, frame));
                     match area {
-                        Some(a) if a < state.min_area => {}
-                        Some(a) if state.areas => out.push_with_area(id, a),
+                        Some(a) if a < options.min_area => {}
+                        Some(a) if options.areas => out.push_with_area(id, a),
                         _ => out.push(id),
                     }
                     // Even a dropped object occludes: its prisms are real.
@@ -723,7 +765,7 @@ impl CullMethod for HorizonCulling {
                 }
             }
         }
-        Ok(counters)
+        counters
     }
 }
 

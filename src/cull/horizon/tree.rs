@@ -61,10 +61,14 @@ fn shrink(v: f64) -> f64 {
 }
 
 impl Horizon {
-    /// Bytes its columns take on the heap.
-    pub fn heap_bytes(&self) -> usize {
-        (self.heights.capacity() + self.floors.capacity() + self.lowest.capacity())
-            * std::mem::size_of::<f64>()
+    /// Sets the number of columns, keeping the allocation when it is large
+    /// enough; the heights are left for [`Horizon::reset`] to empty.
+    pub fn set_columns(&mut self, columns: usize) {
+        let blocks = columns.div_ceil(BLOCK);
+        self.columns = columns;
+        self.heights.resize(columns, f64::NEG_INFINITY);
+        self.floors.resize(blocks, f64::NEG_INFINITY);
+        self.lowest.resize(blocks, f64::NEG_INFINITY);
     }
 
     /// An empty horizon (−∞ everywhere) over `[x0, x1)` in `columns` columns.
