@@ -29,6 +29,7 @@ pub mod dispatch;
 pub mod method;
 pub mod occluder;
 pub mod occlusion;
+pub mod pool;
 pub mod ranking;
 pub mod registry;
 mod spec;

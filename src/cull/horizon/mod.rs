@@ -67,13 +67,14 @@ mod tree;
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::Arc;
 
 use glam::DVec3;
 
 pub use prism::{Prism, Prisms};
 pub use tree::{Horizon, Opening};
 
+use crate::cull::pool::BufferPool;
 use crate::cull::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
@@ -105,6 +106,10 @@ const COLUMNS: Ranged<usize> = Ranged {
 };
 
 const OPTIONS: [&str; 3] = [AREAS, MIN_AREA.key, COLUMNS.key];
+
+/// Most spare sweep buffers a method keeps (about a busy server's
+/// concurrent culls); more are freed.
+const SPARE_BUFFERS: usize = 16;
 
 /// A depth is usable for projection when it exceeds this share of the
 /// point's distance: far above the rounding of the depth itself.
@@ -151,10 +156,8 @@ pub struct HorizonCulling {
     /// Every object's box, by object index: the sweep reads thousands a
     /// frame, and packed they stay in cache where the objects do not.
     bounds: Vec<Aabb>,
-    /// Sweep buffers no cull is using, the last returned on top: a cull
-    /// takes the warmest and gives it back, so there are as many as culls
-    /// ever ran at once (the server's worker threads, for an inline method).
-    spare: Mutex<Vec<SweepBuffers>>,
+    /// Sweep buffers no cull is using ([`HorizonState`]).
+    spare: BufferPool<SweepBuffers>,
 }
 
 impl HorizonCulling {
@@ -171,7 +174,7 @@ impl HorizonCulling {
             bounds: scene.objects().iter().map(|o| o.bounds).collect(),
             scene,
             prisms,
-            spare: Mutex::new(Vec::new()),
+            spare: BufferPool::new(SPARE_BUFFERS),
         }
     }
 
@@ -189,8 +192,9 @@ impl HorizonCulling {
 /// A client's state: its options. A sweep keeps nothing from one frame to
 /// the next, so the buffers it needs ([`SweepBuffers`], 42 KB on the 10k
 /// city street walk) are not the client's but lent by the method for one
-/// cull: a server with thousands of sessions holds as many sets as it runs
-/// culls at once, not one a session.
+/// cull ([`BufferPool`]): a server with thousands of sessions holds as
+/// many sets as it runs culls at once (keeping at most [`SPARE_BUFFERS`]),
+/// not one a session.
 pub struct HorizonState {
     areas: bool,
     min_area: f64,
@@ -603,11 +607,10 @@ impl CullMethod for HorizonCulling {
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
-        let spare = || self.spare.lock().unwrap_or_else(PoisonError::into_inner);
-        let mut buffers = spare().pop().unwrap_or_else(SweepBuffers::new);
+        let mut buffers = self.spare.take().unwrap_or_else(SweepBuffers::new);
         buffers.fit(state.columns, self.scene.objects().len());
         let counters = self.sweep(view, state, &mut buffers, out, occludees);
-        spare().push(buffers);
+        self.spare.put(buffers);
         Ok(counters)
     }
 }

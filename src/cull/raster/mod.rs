@@ -47,7 +47,7 @@
 mod proxies;
 mod surfaces;
 
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 use proxies::Proxies;
 use surfaces::{Outside, Surfaces};
@@ -55,6 +55,7 @@ use surfaces::{Outside, Surfaces};
 use super::depth::{DepthBuffer, Footprint, Kernel, Scratch, Screen};
 use super::occlusion::Visibility;
 use super::occlusion::hierarchy;
+use super::pool::BufferPool;
 use super::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
@@ -165,7 +166,7 @@ fn build(p: &Preparation<'_>) -> Result<Arc<dyn Culler>, String> {
         scene,
         surfaces,
         radius,
-        pool: Arc::new(CanvasPool::default()),
+        pool: Arc::new(CanvasPool(BufferPool::new(POOLED))),
     }))
 }
 
@@ -267,11 +268,8 @@ impl Canvas {
 }
 
 /// Canvases of clients that are gone, lent to new ones: a stateless
-/// request would otherwise allocate, and fault in, a whole buffer. A std
-/// mutex: it is held for a push or a pop, on a blocking thread, never
-/// across an await.
-#[derive(Default)]
-struct CanvasPool(Mutex<Vec<Canvas>>);
+/// request would otherwise allocate, and fault in, a whole buffer.
+struct CanvasPool(BufferPool<Canvas>);
 
 /// Most canvases a pool keeps (about a busy server's concurrent stateless
 /// requests); more are freed.
@@ -279,17 +277,13 @@ const POOLED: usize = 16;
 
 impl CanvasPool {
     fn take(&self, kernel: Kernel) -> Canvas {
-        let pooled = self.0.lock().unwrap_or_else(|e| e.into_inner()).pop();
-        let mut canvas = pooled.unwrap_or_else(|| Canvas::new(kernel));
+        let mut canvas = self.0.take().unwrap_or_else(|| Canvas::new(kernel));
         canvas.buffer.set_kernel(kernel);
         canvas
     }
 
     fn put(&self, canvas: Canvas) {
-        let mut pooled = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        if pooled.len() < POOLED {
-            pooled.push(canvas);
-        }
+        self.0.put(canvas);
     }
 }
 
