@@ -190,10 +190,10 @@ impl HorizonCulling {
 }
 
 /// A client's state: its options. A sweep keeps nothing from one frame to
-/// the next, so the buffers it needs ([`SweepBuffers`], 42 KB on the 10k
+/// the next, so the buffers it needs (`SweepBuffers`, 42 KB on the 10k
 /// city street walk) are not the client's but lent by the method for one
 /// cull ([`BufferPool`]): a server with thousands of sessions holds as
-/// many sets as it runs culls at once (keeping at most [`SPARE_BUFFERS`]),
+/// many sets as it runs culls at once (keeping at most `SPARE_BUFFERS`),
 /// not one a session.
 pub struct HorizonState {
     areas: bool,
