@@ -616,12 +616,12 @@ impl CullMethod for HorizonCulling {
 }
 
 impl HorizonCulling {
-    /// One view's sweep with `options`, in emptied `state` buffers.
+    /// One view's sweep with a client's `options`, in emptied `buffers`.
     fn sweep(
         &self,
         view: &View,
         options: &HorizonState,
-        state: &mut SweepBuffers,
+        buffers: &mut SweepBuffers,
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> CullCounters {
@@ -634,7 +634,7 @@ impl HorizonCulling {
             return counters;
         }
         let sweep = Sweep::new(view, self.prisms.ground());
-        state.horizon.reset(sweep.x0, sweep.x1);
+        buffers.horizon.reset(sweep.x0, sweep.x1);
         let lod = options.areas || options.min_area > 0.0;
         // The empty horizon hides nothing: the root is not hidden at 0 masks.
         let root = Pending {
@@ -647,30 +647,30 @@ impl HorizonCulling {
             sweep.near_depth(&cells[0].bounds),
             Kind::Cell,
             ALL_PLANES,
-            &mut state.pending,
+            &mut buffers.pending,
             root,
         );
-        state.queue.push(event);
+        buffers.queue.push(event);
         let ground = self.prisms.ground();
         for (i, b) in occludees.boxes().iter().enumerate() {
             if occludees.visible()[i] && sweep.occludes && f64::from(b.min.y) >= ground {
-                state.queue.push(Event::new(sweep.near_depth(b), Kind::Dynamic, i as u32, 0));
+                buffers.queue.push(Event::new(sweep.near_depth(b), Kind::Dynamic, i as u32, 0));
             }
         }
-        while let Some(ev) = state.queue.pop() {
+        while let Some(ev) = buffers.queue.pop() {
             match ev.kind() {
                 Kind::Mask => {
-                    let m = state.masks[ev.index() as usize];
-                    state.horizon.insert(m.x_lo, m.x_hi, m.height);
+                    let m = buffers.masks[ev.index() as usize];
+                    buffers.horizon.insert(m.x_lo, m.x_hi, m.height);
                     masks_added += 1;
                 }
                 Kind::Cell => {
-                    let p = state.pending[ev.index() as usize];
+                    let p = buffers.pending[ev.index() as usize];
                     let cell = &cells[p.index as usize];
                     counters.nodes_tested += 1;
                     let (side, planes) = view.frustum().classify(&cell.bounds, ev.planes());
                     if side == Side::Outside
-                        || (p.masks != masks_added && state.horizon.hides_frame(p.frame))
+                        || (p.masks != masks_added && buffers.horizon.hides_frame(p.frame))
                     {
                         continue;
                     }
@@ -678,7 +678,7 @@ impl HorizonCulling {
                         // Stamped and frustum-tested as the cell opens, so
                         // repeats and objects outside the view never
                         // enter the queue (most of its cost).
-                        let (word, bit) = (&mut state.tested[o as usize >> 6], 1 << (o & 63));
+                        let (word, bit) = (&mut buffers.tested[o as usize >> 6], 1 << (o & 63));
                         if *word & bit != 0 {
                             continue;
                         }
@@ -689,7 +689,7 @@ impl HorizonCulling {
                             continue;
                         }
                         let frame = sweep.frame_if_occluding(b);
-                        if state.horizon.hides_frame(frame) {
+                        if buffers.horizon.hides_frame(frame) {
                             continue;
                         }
                         let p = Pending {
@@ -701,15 +701,15 @@ impl HorizonCulling {
                             sweep.near_depth(b),
                             Kind::Object,
                             0,
-                            &mut state.pending,
+                            &mut buffers.pending,
                             p,
                         );
-                        state.queue.push(event);
+                        buffers.queue.push(event);
                     }
                     for &c in cell.children.iter().filter(|&&c| c != 0) {
                         let b = &cells[c as usize].bounds;
                         let frame = sweep.frame_if_occluding(b);
-                        if state.horizon.hides_frame(frame) {
+                        if buffers.horizon.hides_frame(frame) {
                             continue;
                         }
                         let p = Pending {
@@ -721,16 +721,16 @@ impl HorizonCulling {
                             sweep.near_depth(b),
                             Kind::Cell,
                             planes,
-                            &mut state.pending,
+                            &mut buffers.pending,
                             p,
                         );
-                        state.queue.push(event);
+                        buffers.queue.push(event);
                     }
                 }
                 Kind::Dynamic => {
                     let i = ev.index() as usize;
                     let frame = sweep.frame_if_occluding(&occludees.boxes()[i]);
-                    if state.horizon.hides_frame(frame) {
+                    if buffers.horizon.hides_frame(frame) {
                         occludees.hide(i);
                     }
                 }
@@ -739,18 +739,18 @@ impl HorizonCulling {
                         index,
                         frame,
                         masks,
-                    } = state.pending[ev.index() as usize];
+                    } = buffers.pending[ev.index() as usize];
                     // The quadtree holds ids, and objects are indexed by
                     // id: reading the object back (88 bytes, far from the
                     // packed boxes) was a cache miss for each visible
                     // object in a server of many sessions.
                     let id = index;
                     let bounds = &self.bounds[index as usize];
-                    if masks != masks_added && state.horizon.hides_frame(frame) {
+                    if masks != masks_added && buffers.horizon.hides_frame(frame) {
                         continue;
                     }
                     let area =
-                        lod.then(|| area_bound(view, &sweep, &state.horizon, bounds, frame));
+                        lod.then(|| area_bound(view, &sweep, &buffers.horizon, bounds, frame));
                     match area {
                         Some(a) if a < options.min_area => {}
                         Some(a) if options.areas => out.push_with_area(id, a),
@@ -760,8 +760,8 @@ impl HorizonCulling {
                     if sweep.occludes && !sweep.reaches_into(bounds) {
                         for prism in self.prisms.of(id) {
                             if let Some((mask, far)) = sweep.mask(prism) {
-                                state.queue.push(Event::new(far, Kind::Mask, state.masks.len() as u32, 0));
-                                state.masks.push(mask);
+                                buffers.queue.push(Event::new(far, Kind::Mask, buffers.masks.len() as u32, 0));
+                                buffers.masks.push(mask);
                             }
                         }
                     }
