@@ -352,7 +352,13 @@ impl Sessions {
                 ended.insert((*id).clone(), why);
             }
         };
-        let floor = (limits.cache_bytes / limits.max_sessions.max(1)).max(1);
+        // Rounded up: every session weighs at least the floor, so the byte
+        // cap holds at most `max_sessions` of them (rounded down, 8 MiB over
+        // 5,000 sessions let 5,002 in once sessions were light enough).
+        let floor = limits
+            .cache_bytes
+            .div_ceil(limits.max_sessions.max(1))
+            .max(1);
         // Least recently used, not moka's default TinyLFU: TinyLFU may
         // refuse a new session outright when the cache is full, and a
         // client that just made one must be able to use it.
