@@ -9,6 +9,8 @@
 //! valgrind, count only the culls with
 //! `valgrind --tool=callgrind --toggle-collect='*cull_blocking*' target/release/examples/cull_profile …`:
 //! instruction counts do not drift with the machine as times do.
+//! `DDO_LEAF_TRIANGLES=128` bakes `ddo`'s octree with that many triangles
+//! a leaf (`--ddo-leaf-triangles` of `pvsd eval`) instead of the default.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -40,6 +42,12 @@ fn main() {
             .map(String::from)
             .collect(),
         ..MethodContext::default()
+    };
+    let context = match std::env::var("DDO_LEAF_TRIANGLES") {
+        Ok(n) => context
+            .with_ddo_leaf_triangles(n.parse().expect("DDO_LEAF_TRIANGLES: a whole number"))
+            .unwrap(),
+        Err(_) => context,
     };
     let methods = SceneMethods::prepare_with(scene.clone(), &registry, &context);
     // `pvsd eval`'s viewports: MOC's 512×320 for unrelated views.

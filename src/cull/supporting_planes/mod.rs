@@ -261,22 +261,47 @@ fn place(s: &Shadow, b: &Aabb, eps: f64) -> Placement {
     }
 }
 
-/// The corners of the part of box `b` on the negative side of `plane`.
-fn clip_box(corners: &[DVec3; 8], plane: &Plane) -> Vec<DVec3> {
-    let d = corners.map(|c| plane.signed_distance(c));
-    let mut out: Vec<DVec3> = (0..8)
-        .filter(|&i| d[i] <= 0.0)
-        .map(|i| corners[i])
-        .collect();
-    for i in 0..8 {
-        for bit in [1, 2, 4] {
-            let j = i | bit;
-            if j != i && (d[i] < 0.0) != (d[j] < 0.0) && d[i] != d[j] {
-                out.push(corners[i] + (corners[j] - corners[i]) * (d[i] / (d[i] - d[j])));
+/// The points spanning the part of a box on one side of a plane: its
+/// corners there and where its edges cross the plane, at most 8 + 12.
+/// Kept on the stack: it is formed for every pair a box is tested against,
+/// and the `Vec` it was had the allocator as the method's largest cost.
+struct BoxPart {
+    points: [DVec3; 20],
+    len: usize,
+}
+
+impl BoxPart {
+    /// The part of the box with `corners` on the negative side of `plane`.
+    fn clipped(corners: &[DVec3; 8], plane: &Plane) -> BoxPart {
+        let d = corners.map(|c| plane.signed_distance(c));
+        let mut part = BoxPart {
+            points: [DVec3::ZERO; 20],
+            len: 0,
+        };
+        for (&c, &dc) in corners.iter().zip(&d) {
+            if dc <= 0.0 {
+                part.push(c);
             }
         }
+        for i in 0..8 {
+            for bit in [1, 2, 4] {
+                let j = i | bit;
+                if j != i && (d[i] < 0.0) != (d[j] < 0.0) && d[i] != d[j] {
+                    part.push(corners[i] + (corners[j] - corners[i]) * (d[i] / (d[i] - d[j])));
+                }
+            }
+        }
+        part
     }
-    out
+
+    fn push(&mut self, p: DVec3) {
+        self.points[self.len] = p;
+        self.len += 1;
+    }
+
+    fn points(&self) -> &[DVec3] {
+        &self.points[..self.len]
+    }
 }
 
 impl CullMethod for SupportingPlanesCulling {
@@ -425,10 +450,14 @@ impl CullMethod for SupportingPlanesCulling {
                 }
                 // The box's part on each occluder's side of the shared edge's
                 // plane must be in that occluder's shadow.
-                let near = clip_box(&corners, &cut);
-                let far = clip_box(&corners, &cut.flipped());
-                if inside(&shadows[s], &near, Some(ea), eps)
-                    && inside(&shadows[t], &far, Some(eb), eps)
+                let near = BoxPart::clipped(&corners, &cut);
+                if inside(&shadows[s], near.points(), Some(ea), eps)
+                    && inside(
+                        &shadows[t],
+                        BoxPart::clipped(&corners, &cut.flipped()).points(),
+                        Some(eb),
+                        eps,
+                    )
                 {
                     return Visibility::Invisible;
                 }
