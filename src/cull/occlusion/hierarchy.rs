@@ -32,6 +32,56 @@ pub(crate) enum Target {
     Dynamic(u32),
 }
 
+/// Per kd node, what its occlusion test this frame leaves for the tests
+/// below it, stamped with the frame that wrote it.
+///
+/// A node's bounds hold its children's and its leaves' object parts, and
+/// the methods' box tests are monotone in the box (a box inside another is
+/// never placed less clear of a plane, rounding included:
+/// [`crate::geom::Plane::box_range`]), so what a test rules out for a box
+/// holds for every box inside it: a node starts from its nearest ancestor
+/// tested this frame (the traversal may open a marked node untested).
+#[derive(Default)]
+pub(crate) struct AncestorNotes<T> {
+    frame: u32,
+    nodes: Vec<(u32, T)>,
+}
+
+impl<T: Copy + Default> AncestorNotes<T> {
+    /// Forgets the last frame's notes, for a tree of `nodes` nodes.
+    pub(crate) fn start_frame(&mut self, nodes: usize) {
+        self.frame = self.frame.wrapping_add(1);
+        self.nodes.resize(nodes, (0, T::default()));
+        if self.frame == 0 {
+            self.nodes.fill((0, T::default()));
+            self.frame = 1;
+        }
+    }
+
+    /// The note of node `n`'s nearest ancestor tested this frame.
+    pub(crate) fn nearest(&self, parents: &[u32], n: u32) -> Option<T> {
+        let mut at = parents[n as usize];
+        while at != u32::MAX {
+            let (frame, note) = self.nodes[at as usize];
+            if frame == self.frame {
+                return Some(note);
+            }
+            at = parents[at as usize];
+        }
+        None
+    }
+
+    /// Leaves `note` for the nodes below `n`.
+    pub(crate) fn set(&mut self, n: u32, note: T) {
+        self.nodes[n as usize] = (self.frame, note);
+    }
+
+    /// Bytes held on the heap.
+    pub(crate) fn heap_bytes(&self) -> usize {
+        self.nodes.capacity() * std::mem::size_of::<(u32, T)>()
+    }
+}
+
 /// Tests dynamic occludees (avatars) with a method's occlusion `test` once
 /// the hierarchy is culled: those in the frustum that the test finds
 /// invisible are hidden. Occluders are real surfaces, so the test holds

@@ -17,7 +17,7 @@ use super::occluder::Occluders;
 use super::{Preparation, View};
 use crate::geom::{ConvexPolygon, Plane};
 use crate::scene::Scene;
-use crate::spatial::KdTree;
+use crate::spatial::{KdTree, NodeKind};
 
 /// What an object-space occlusion method culls over: the scene, its
 /// kd-tree and its large planar occluders, shared with every other method
@@ -26,16 +26,29 @@ pub(crate) struct OccluderScene {
     pub scene: Arc<Scene>,
     pub tree: Arc<KdTree>,
     pub occluders: Arc<Occluders>,
+    /// Per kd node, its parent (`u32::MAX` for the root): where
+    /// [`hierarchy::AncestorNotes`] look up what a node's ancestors found.
+    pub parents: Vec<u32>,
 }
 
 impl OccluderScene {
     /// The scene's, from its preparation; the reason when it has no
     /// occluders large enough to be worth testing against.
     pub(crate) fn prepared(p: &Preparation<'_>) -> Result<OccluderScene, String> {
+        let tree = p.kd_tree();
+        let mut parents = vec![u32::MAX; tree.nodes().len()];
+        for (i, node) in tree.nodes().iter().enumerate() {
+            if let NodeKind::Inner { children, .. } = node.kind {
+                for c in children {
+                    parents[c as usize] = i as u32;
+                }
+            }
+        }
         Ok(OccluderScene {
             scene: p.scene().clone(),
-            tree: p.kd_tree(),
+            tree,
             occluders: p.require_occluders()?,
+            parents,
         })
     }
 }

@@ -24,7 +24,7 @@ use std::sync::Arc;
 
 use glam::DVec3;
 
-use super::occlusion::hierarchy::Target;
+use super::occlusion::hierarchy::{AncestorNotes, Target};
 use super::occlusion::tolerance::{plane_tolerance, too_small_to_trust};
 use super::occlusion::{OccluderScene, Selection, SelectionOptions, Visibility, visible_parts};
 use super::{
@@ -32,7 +32,6 @@ use super::{
     Occludees, Preparation, View, VisibleSet,
 };
 use crate::geom::{Aabb, ConvexPolygon, Plane};
-use crate::spatial::NodeKind;
 
 /// The method's registry entry.
 pub const ENTRY: MethodEntry = MethodEntry {
@@ -55,8 +54,6 @@ pub struct SupportingPlanesCulling {
     world: OccluderScene,
     /// Per occluder: the occluders it shares an edge with, and that edge.
     neighbours: Vec<Vec<(u32, [DVec3; 2])>>,
-    /// Per kd node, its parent (`u32::MAX` for the root).
-    parents: Vec<u32>,
 }
 
 /// A client's state: options, marks, next occluders, and per kd node the
@@ -64,40 +61,12 @@ pub struct SupportingPlanesCulling {
 pub struct SupportingPlanesState {
     selection: Selection,
     hidden_by: FxHashMap<u32, u32>,
-    /// Per kd node tested this frame, the shadows its bounds are not clear
-    /// of ([`ShadowMasks`]).
-    masks: ShadowMasks,
-}
-
-/// Per kd node, the shadows (bit i: the frame's i-th, up to 64) its bounds
-/// were found not clear of, stamped with the frame that found it.
-///
-/// A node's bounds hold its children's and its leaves' object parts, and a
-/// box inside another is never placed less clear of a plane
-/// ([`crate::geom::Plane::box_range`] is monotone in the box), so a shadow
-/// an ancestor is clear of is one every box below is clear of: those below
-/// test only the shadows of their nearest ancestor tested this frame. The
-/// answers are the same as testing every shadow, in less time.
-#[derive(Default)]
-struct ShadowMasks {
-    frame: u32,
-    nodes: Vec<(u32, u64)>,
-}
-
-impl ShadowMasks {
-    /// The shadows worth testing for node `n`: its nearest ancestor's
-    /// that was tested this frame, or all of them.
-    fn for_node(&self, parents: &[u32], n: u32, all: u64) -> u64 {
-        let mut at = parents[n as usize];
-        while at != u32::MAX {
-            let (frame, mask) = self.nodes[at as usize];
-            if frame == self.frame {
-                return mask;
-            }
-            at = parents[at as usize];
-        }
-        all
-    }
+    /// Per kd node tested this frame, the shadows (bit i: the frame's
+    /// i-th, up to 64) its bounds were found not clear of: a shadow an
+    /// ancestor is clear of is one every box below is clear of, so those
+    /// below test only the rest ([`AncestorNotes`]). The answers are the
+    /// same as testing every shadow, in less time.
+    masks: AncestorNotes<u64>,
 }
 
 /// One occluder seen from this frame's eye.
@@ -140,20 +109,7 @@ impl SupportingPlanesCulling {
                 }
             }
         }
-        let nodes = world.tree.nodes();
-        let mut parents = vec![u32::MAX; nodes.len()];
-        for (i, node) in nodes.iter().enumerate() {
-            if let NodeKind::Inner { children, .. } = node.kind {
-                for c in children {
-                    parents[c as usize] = i as u32;
-                }
-            }
-        }
-        SupportingPlanesCulling {
-            world,
-            neighbours,
-            parents,
-        }
+        SupportingPlanesCulling { world, neighbours }
     }
 
     /// The shadow of `part`, the visible part of occluder `index`.
@@ -318,7 +274,7 @@ impl CullMethod for SupportingPlanesCulling {
         Ok(SupportingPlanesState {
             selection,
             hidden_by: FxHashMap::default(),
-            masks: ShadowMasks::default(),
+            masks: AncestorNotes::default(),
         })
     }
 
@@ -382,12 +338,7 @@ impl CullMethod for SupportingPlanesCulling {
         }
         let hidden_by = &mut state.hidden_by;
         let masks = &mut state.masks;
-        masks.frame = masks.frame.wrapping_add(1);
-        masks.nodes.resize(self.parents.len(), (0, 0));
-        if masks.frame == 0 {
-            masks.nodes.fill((0, 0));
-            masks.frame = 1;
-        }
+        masks.start_frame(self.world.parents.len());
         // With more shadows than bits, every box tests them all.
         let masked = shadows.len() <= 64;
         let all = if shadows.len() >= 64 {
@@ -407,7 +358,7 @@ impl CullMethod for SupportingPlanesCulling {
                 }
             }
             let active = match target {
-                Target::Node(n) if masked => masks.for_node(&self.parents, n, all),
+                Target::Node(n) if masked => masks.nearest(&self.world.parents, n).unwrap_or(all),
                 Target::Object(_) if masked => leaf_mask,
                 _ => all,
             };
@@ -437,7 +388,7 @@ impl CullMethod for SupportingPlanesCulling {
                 }
             }
             if let Target::Node(n) = target {
-                masks.nodes[n as usize] = (masks.frame, across);
+                masks.set(n, across);
                 leaf_mask = across;
             }
             if clear.iter().all(|&c| c) {
@@ -473,6 +424,6 @@ impl CullMethod for SupportingPlanesCulling {
         std::mem::size_of::<Self::State>()
             + state.selection.heap_bytes()
             + state.hidden_by.capacity() * 3 * std::mem::size_of::<u32>()
-            + state.masks.nodes.capacity() * std::mem::size_of::<(u32, u64)>()
+            + state.masks.heap_bytes()
     }
 }
