@@ -10,7 +10,7 @@ mod common;
 use common::{assert_seen, check_camera, office_scene, rng};
 use glam::{DVec3, Vec3};
 use pvsd::cull::occlusion::Visibility;
-use pvsd::cull::occlusion_tree::{LeafTest, OcclusionTree};
+use pvsd::cull::occlusion_tree::{Entry, LeafTest, OcclusionTree};
 use pvsd::cull::{MethodSpec, Registry};
 use pvsd::geom::{Aabb, Camera, ConvexPolygon};
 use rand::Rng;
@@ -283,6 +283,43 @@ fn trees_agree_with_brute_force_ray_casting() {
         mobsp_invisible[1] > mobsp_invisible[0] && mobsp_invisible[3] > mobsp_invisible[2],
         "clipping finds more hidden: {mobsp_invisible:?}"
     );
+}
+
+#[test]
+fn a_box_inside_another_searched_from_its_entry_answers_as_from_the_root() {
+    let mut r = rng(11);
+    let eye = DVec3::ZERO;
+    let mut below_root = 0;
+    for _ in 0..200 {
+        let polys: Vec<ConvexPolygon> = (0..r.random_range(1..10))
+            .map(|_| random_quad(&mut r))
+            .collect();
+        let tree = OcclusionTree::build(eye, &polys, true, 1e-9);
+        for _ in 0..20 {
+            let b = random_box(&mut r);
+            // A box inside `b` (sharing a face with it now and then).
+            let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+            let mut t = [DVec3::ZERO; 2].map(|_| DVec3::new(r.random(), r.random(), r.random()));
+            if r.random_bool(0.3) {
+                t[0].x = 0.0;
+            }
+            let (p, q) = (lo + (hi - lo) * t[0], lo + (hi - lo) * t[1]);
+            let inner = Aabb::new(p.min(q).as_vec3().max(b.min), p.max(q).as_vec3().min(b.max));
+            for test in [LeafTest::Exact, LeafTest::Conservative] {
+                for clip in [false, true] {
+                    let (whole, entry) = tree.region_visibility_from(&b, test, clip, Entry::ROOT);
+                    assert_eq!(whole, tree.region_visibility(&b, test, clip));
+                    below_root += usize::from(entry != Entry::ROOT);
+                    assert_eq!(
+                        tree.region_visibility_from(&inner, test, clip, entry).0,
+                        tree.region_visibility(&inner, test, clip),
+                        "{inner:?} inside {b:?} ({test:?}, clip {clip})"
+                    );
+                }
+            }
+        }
+    }
+    assert!(below_root > 1000, "entries below the root: {below_root}");
 }
 
 #[test]

@@ -27,9 +27,9 @@ mod tree;
 
 use std::sync::Arc;
 
-pub use tree::{LeafTest, OcclusionTree};
+pub use tree::{Entry, LeafTest, OcclusionTree};
 
-use super::occlusion::hierarchy::Target;
+use super::occlusion::hierarchy::{AncestorNotes, Target};
 use super::occlusion::tolerance::plane_tolerance;
 use super::occlusion::{OccluderScene, Selection, SelectionOptions, visible_parts};
 use super::{
@@ -92,6 +92,9 @@ pub struct OcclusionTreeState {
     /// tree serves again only a frame with all four unchanged (a camera standing still, or turning about an axis
     /// that keeps its near plane); then it is not rebuilt.
     built_for: Option<(DVec3, Plane, Region, Vec<u32>)>,
+    /// Per kd node tested this frame, where its search of `tree` went both
+    /// ways first: the nodes below start there ([`Entry`]).
+    entries: AncestorNotes<Entry>,
 }
 
 /// The variants, in `variant=` spelling; the first is the default.
@@ -130,6 +133,7 @@ impl CullMethod for OcclusionTreeCulling {
             selection,
             tree: OcclusionTree::default(),
             built_for: None,
+            entries: AncestorNotes::default(),
         })
     }
 
@@ -184,10 +188,28 @@ impl CullMethod for OcclusionTreeCulling {
             state.built_for = Some((eye, near, view.region(), picked));
         }
         let occlusion = &*occlusion;
-        let mut test = |_: Target, b: &Aabb| match variant {
-            Variant::Fse => occlusion.box_visibility_exact(b),
-            Variant::Fme => occlusion.region_visibility(b, LeafTest::Exact, clip),
-            Variant::Fmc => occlusion.region_visibility(b, LeafTest::Conservative, clip),
+        let entries = &mut state.entries;
+        entries.start_frame(self.world.parents.len());
+        // Objects are tested right after their leaf: they start from its entry.
+        let mut leaf_entry = Entry::ROOT;
+        let mut test = |target: Target, b: &Aabb| {
+            let leaf_test = match variant {
+                Variant::Fse => return occlusion.box_visibility_exact(b),
+                Variant::Fme => LeafTest::Exact,
+                Variant::Fmc => LeafTest::Conservative,
+            };
+            let from = match target {
+                Target::Node(n) => entries.nearest(&self.world.parents, n),
+                Target::Object(_) => Some(leaf_entry),
+                Target::Dynamic(_) => None,
+            };
+            let (visibility, entry) =
+                occlusion.region_visibility_from(b, leaf_test, clip, from.unwrap_or(Entry::ROOT));
+            if let Target::Node(n) = target {
+                entries.set(n, entry);
+                leaf_entry = entry;
+            }
+            visibility
         };
         Ok(state
             .selection
@@ -198,6 +220,7 @@ impl CullMethod for OcclusionTreeCulling {
         std::mem::size_of::<Self::State>()
             + state.selection.heap_bytes()
             + state.tree.heap_bytes()
+            + state.entries.heap_bytes()
             + state
                 .built_for
                 .as_ref()

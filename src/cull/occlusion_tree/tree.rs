@@ -60,6 +60,21 @@ pub enum LeafTest {
     Conservative,
 }
 
+/// Where a search of the tree for a box may start: the node where its
+/// search first goes both ways. A box inside another takes, at every plane
+/// above that node, the same single side (a box's signed-distance range
+/// is monotone in the box, rounding included), so its search passes
+/// through the same node and may start there; the answers are the same as
+/// searching from the root. Only meaningful for the tree as built when it
+/// was found.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Entry(u32);
+
+impl Entry {
+    /// The root: where any search may start.
+    pub const ROOT: Entry = Entry(0);
+}
+
 #[derive(Clone, Copy, Debug)]
 enum Node {
     Inner { plane: Plane, front: u32, back: u32 },
@@ -325,24 +340,62 @@ impl OcclusionTree {
     /// both subtrees are searched with the whole box, as in the paper.
     /// With `clip`, see [`OcclusionTree::clipped_region_visibility`].
     pub fn region_visibility(&self, b: &Aabb, leaf_test: LeafTest, clip: bool) -> Visibility {
-        if clip {
-            return self.clipped_region_visibility(b, leaf_test);
+        self.region_visibility_from(b, leaf_test, clip, Entry::ROOT).0
+    }
+
+    /// [`OcclusionTree::region_visibility`] searched from `from`, the
+    /// [`Entry`] of a box holding `b` (or [`Entry::ROOT`]); also returns
+    /// `b`'s own entry, from which boxes inside `b` may be searched.
+    pub fn region_visibility_from(
+        &self,
+        b: &Aabb,
+        leaf_test: LeafTest,
+        clip: bool,
+        from: Entry,
+    ) -> (Visibility, Entry) {
+        let region = Region::of(b);
+        let entry = self.entry(&region, from);
+        let v = if clip {
+            self.clipped_region_visibility(region, entry, leaf_test)
+        } else {
+            self.whole_region_visibility(&region, entry, leaf_test)
+        };
+        (v, entry)
+    }
+
+    /// The node where the search for `r` first goes both ways (or the leaf
+    /// it reaches without), walking down from `from`. Above it the search
+    /// takes one side at each plane, with the whole region (unclipped), so
+    /// every search for `r` passes through it.
+    fn entry(&self, r: &Region, from: Entry) -> Entry {
+        let mut at = from.0;
+        while let Node::Inner { plane, front, back } = &self.nodes[at as usize] {
+            let (lo, hi) = r.range(plane);
+            at = if lo > self.eps {
+                *front
+            } else if hi < -self.eps {
+                *back
+            } else {
+                break;
+            };
         }
+        Entry(at)
+    }
+
+    fn whole_region_visibility(&self, r: &Region, entry: Entry, leaf_test: LeafTest) -> Visibility {
         let mut result = Combined::default();
         // Called for every kd node and object a frame: keep it off the heap
         // while the tree is shallow enough, which it nearly always is.
         let mut stack = SmallStack::new();
-        stack.push(0u32);
+        stack.push(entry.0);
         while let Some(n) = stack.pop() {
             let v = match &self.nodes[n as usize] {
                 Node::Out => Visibility::Full,
-                Node::In { fragment } => self.leaf_region(
-                    &self.fragments[*fragment as usize],
-                    &Region::of(b),
-                    leaf_test,
-                ),
+                Node::In { fragment } => {
+                    self.leaf_region(&self.fragments[*fragment as usize], r, leaf_test)
+                }
                 Node::Inner { plane, front, back } => {
-                    let (lo, hi) = plane.box_range(b);
+                    let (lo, hi) = r.range(plane);
                     if lo > self.eps {
                         stack.push(*front);
                     } else if hi < -self.eps {
@@ -368,10 +421,15 @@ impl OcclusionTree {
     /// partly visible merely for sticking out of each shadow (the paper's
     /// Fig. 8). Finds everything [`OcclusionTree::region_visibility`] finds
     /// hidden, and more, at the cost of clipping at every crossing.
-    fn clipped_region_visibility(&self, b: &Aabb, leaf_test: LeafTest) -> Visibility {
+    fn clipped_region_visibility(
+        &self,
+        region: Region,
+        entry: Entry,
+        leaf_test: LeafTest,
+    ) -> Visibility {
         let mut result = Combined::default();
         let mut stack = SmallStack::new();
-        stack.push((0u32, Region::of(b)));
+        stack.push((entry.0, region));
         while let Some((n, r)) = stack.pop() {
             let v = match &self.nodes[n as usize] {
                 Node::Out => Visibility::Full,
