@@ -277,15 +277,8 @@ impl Skeleton {
                 }
             }
             for k in 0..8u32 {
-                let mut t = [0.0f64, 1.0f64];
-                let met = (0..3).all(|axis| match slabs[axis][(k >> axis & 1) as usize] {
-                    Some(s) => {
-                        t = [t[0].max(s[0]), t[1].min(s[1])];
-                        true
-                    }
-                    None => false,
-                });
-                if met && Segment::meets(t) {
+                let child = (0..3).map(|axis| slabs[axis][(k >> axis & 1) as usize]);
+                if Segment::within(child).is_some_and(Segment::meets) {
                     stack.push(node.children + k);
                 }
             }
@@ -448,14 +441,18 @@ impl Segment {
     /// of the quotient, and the `1e-9` slack on the segment's parameter is
     /// seven orders above that).
     pub fn meets_box(&self, lo: DVec3, hi: DVec3) -> bool {
+        Segment::within((0..3).map(|k| self.slab(k, lo[k], hi[k]))).is_some_and(Segment::meets)
+    }
+
+    /// The parameters `[t₀, t₁]` of the segment (`[0, 1]`) narrowed to
+    /// each slab in turn, or `None` when a slab misses the line.
+    fn within(slabs: impl Iterator<Item = Option<[f64; 2]>>) -> Option<[f64; 2]> {
         let mut t = [0.0f64, 1.0f64];
-        for k in 0..3 {
-            match self.slab(k, lo[k], hi[k]) {
-                Some(s) => t = [t[0].max(s[0]), t[1].min(s[1])],
-                None => return false,
-            }
+        for s in slabs {
+            let s = s?;
+            t = [t[0].max(s[0]), t[1].min(s[1])];
         }
-        Segment::meets(t)
+        Some(t)
     }
 
     /// The parameters `[t₀, t₁]` of its line between the planes `lo` and
