@@ -86,13 +86,11 @@ pub struct Surfaces {
     pub triangles: Vec<[DVec3; 3]>,
     /// Per triangle, its three edges (corner `i` to corner `i + 1`).
     edges: Vec<[u32; 3]>,
-    /// Per edge, its range of `edge_triangles`.
-    edge_start: Vec<u32>,
     /// The triangles on each edge.
-    edge_triangles: Vec<u32>,
+    on_edges: EdgeTriangles,
     /// Per triangle and edge, the one other triangle on it, or [`SHARED`]
-    /// when the edge has none or more than one (then `edge_triangles`
-    /// says which): the walks' common case without two lookups.
+    /// when the edge has none or more than one (then `on_edges` says
+    /// which): the walks' common case without two lookups.
     neighbours: Vec<[u32; 3]>,
     /// Per triangle, its box.
     boxes: Vec<[DVec3; 2]>,
@@ -147,13 +145,16 @@ impl Surfaces {
                 fill[e as usize] += 1;
             }
         }
+        let on_edges = EdgeTriangles {
+            start: edge_start,
+            triangles: edge_triangles,
+        };
         let neighbours = edges
             .iter()
             .enumerate()
             .map(|(t, es)| {
                 es.map(|e| {
-                    let on = &edge_triangles[edge_start[e as usize] as usize..edge_start[e as usize + 1] as usize];
-                    match *on {
+                    match *on_edges.on(e) {
                         [a, b] if a as usize == t => b,
                         [a, b] if b as usize == t => a,
                         _ => SHARED,
@@ -165,34 +166,44 @@ impl Surfaces {
             .iter()
             .map(|t| [t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2])])
             .collect();
-        let (component, component_boxes) = components(&edges, &edge_start, &edge_triangles, &boxes);
+        let (component, component_boxes) = components(&on_edges, &boxes);
         Surfaces {
             boxes,
             component,
             component_boxes,
             triangles,
             edges,
-            edge_start,
-            edge_triangles,
+            on_edges,
             neighbours,
         }
     }
 
-    fn on_edge(&self, e: u32) -> &[u32] {
-        &self.edge_triangles
-            [self.edge_start[e as usize] as usize..self.edge_start[e as usize + 1] as usize]
+}
+
+/// The triangles on each edge, edge after edge in one list.
+struct EdgeTriangles {
+    /// Per edge, where its triangles start in `triangles`; one more entry
+    /// closes the last edge's.
+    start: Vec<u32>,
+    triangles: Vec<u32>,
+}
+
+impl EdgeTriangles {
+    /// The triangles on edge `e`.
+    fn on(&self, e: u32) -> &[u32] {
+        &self.triangles[self.start[e as usize] as usize..self.start[e as usize + 1] as usize]
+    }
+
+    /// How many edges.
+    fn len(&self) -> usize {
+        self.start.len() - 1
     }
 }
 
 /// Each triangle's connected set (triangles sharing an edge are joined) and
 /// each set's box, by union–find.
-fn components(
-    edges: &[[u32; 3]],
-    edge_start: &[u32],
-    edge_triangles: &[u32],
-    boxes: &[[DVec3; 2]],
-) -> (Vec<u32>, Vec<[DVec3; 2]>) {
-    let mut parent: Vec<u32> = (0..edges.len() as u32).collect();
+fn components(on_edges: &EdgeTriangles, boxes: &[[DVec3; 2]]) -> (Vec<u32>, Vec<[DVec3; 2]>) {
+    let mut parent: Vec<u32> = (0..boxes.len() as u32).collect();
     fn root(parent: &mut [u32], mut t: u32) -> u32 {
         while parent[t as usize] != t {
             let up = parent[parent[t as usize] as usize];
@@ -201,15 +212,14 @@ fn components(
         }
         t
     }
-    for e in 0..edge_start.len() - 1 {
-        let on = &edge_triangles[edge_start[e] as usize..edge_start[e + 1] as usize];
-        for w in on.windows(2) {
+    for e in 0..on_edges.len() as u32 {
+        for w in on_edges.on(e).windows(2) {
             let (a, b) = (root(&mut parent, w[0]), root(&mut parent, w[1]));
             parent[a.max(b) as usize] = a.min(b);
         }
     }
-    let mut id = vec![u32::MAX; edges.len()];
-    let mut component = Vec::with_capacity(edges.len());
+    let mut id = vec![u32::MAX; boxes.len()];
+    let mut component = Vec::with_capacity(boxes.len());
     let mut component_boxes: Vec<[DVec3; 2]> = Vec::new();
     for (t, tbox) in boxes.iter().enumerate() {
         let r = root(&mut parent, t as u32) as usize;
@@ -658,7 +668,7 @@ impl Validator<'_> {
                     // counted without looking the edge up.
                     let other = surfaces.neighbours[t as usize][i];
                     let (on, mut inside) = if other == SHARED {
-                        (surfaces.on_edge(e), 0)
+                        (surfaces.on_edges.on(e), 0)
                     } else {
                         (std::slice::from_ref(&other), 1)
                     };
