@@ -177,7 +177,6 @@ impl Surfaces {
             neighbours,
         }
     }
-
 }
 
 /// The triangles on each edge, edge after edge in one list.

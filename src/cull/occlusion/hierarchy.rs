@@ -36,11 +36,12 @@ pub(crate) enum Target {
 /// below it, stamped with the frame that wrote it.
 ///
 /// A node's bounds hold its children's and its leaves' object parts, and
-/// the methods' box tests are monotone in the box (a box inside another is
-/// never placed less clear of a plane, rounding included:
-/// [`crate::geom::Plane::box_range`]), so what a test rules out for a box
-/// holds for every box inside it: a node starts from its nearest ancestor
-/// tested this frame (the traversal may open a marked node untested).
+/// a box's signed-distance range to a plane only narrows as the box
+/// shrinks, rounding included ([`crate::geom::Plane::box_range`]). So what
+/// a test found of a box through such ranges (the shadows it is clear of,
+/// the planes its search passes on one side) holds for every box inside
+/// it: a node starts from its nearest ancestor tested this frame (the
+/// traversal may open a marked node untested).
 #[derive(Default)]
 pub(crate) struct AncestorNotes<T> {
     frame: u32,
