@@ -37,8 +37,9 @@ pub(crate) fn frustum_cull_subtree(
         match (side, node.kind) {
             (Side::Outside, _) => {}
             (Side::Inside, NodeKind::Leaf) => out.extend_from_slice(tree.node_refs(node)),
+            // Each object once, not once per leaf below (a ground is in most).
             (Side::Inside, NodeKind::Inner { .. }) if leaves.is_none() => {
-                out.extend_from_slice(tree.node_refs(node))
+                out.extend_from_slice(tree.node_objects(node))
             }
             (_, NodeKind::Inner { children, .. }) => {
                 stack.push((children[1], mask));

@@ -17,6 +17,11 @@
 //! object's box lies in the clipped box of some leaf that references it, so
 //! a node whose bounds a test rejects holds no part of any object that test
 //! would accept.
+//!
+//! An inner node also lists the distinct objects below it, for a traversal
+//! that accepts a whole subtree: its refs repeat every object once per leaf
+//! that holds it, and one ground in most leaves of a city makes the repeats
+//! most of them (10k city: 19,265 refs for 10,001 objects).
 
 use std::ops::Range;
 
@@ -61,6 +66,11 @@ pub enum NodeKind {
         split: f32,
         /// Node indices of the lower and upper child.
         children: [u32; 2],
+        /// The distinct objects below, once each, ascending: a range of
+        /// `KdTree::distinct` ([`KdTree::node_objects`]). A subtree accepted
+        /// whole takes them rather than its refs, in which a ground or a
+        /// floor slab repeats once per leaf.
+        distinct: [u32; 2],
     },
 }
 
@@ -85,6 +95,8 @@ pub struct KdNode {
 pub struct KdTree {
     nodes: Vec<KdNode>,
     refs: Vec<u32>,
+    /// Inner nodes' distinct objects (`NodeKind::Inner::distinct`).
+    distinct: Vec<u32>,
     params: KdTreeParams,
 }
 
@@ -104,6 +116,7 @@ impl KdTree {
             params,
             nodes: Vec::new(),
             refs: Vec::new(),
+            distinct: Vec::new(),
         };
         let cell = items
             .iter()
@@ -111,9 +124,14 @@ impl KdTree {
         if !items.is_empty() {
             b.build(cell, items, 0);
         }
+        // Built by pushing: keep only what is used for the scene's life.
+        b.nodes.shrink_to_fit();
+        b.refs.shrink_to_fit();
+        b.distinct.shrink_to_fit();
         KdTree {
             nodes: b.nodes,
             refs: b.refs,
+            distinct: b.distinct,
             params,
         }
     }
@@ -138,6 +156,17 @@ impl KdTree {
         &self.refs[node.refs.start as usize..node.refs.end as usize]
     }
 
+    /// The distinct object ids below a node, each once, ascending (a
+    /// leaf's refs are so already).
+    pub fn node_objects(&self, node: &KdNode) -> &[u32] {
+        match node.kind {
+            NodeKind::Leaf => self.node_refs(node),
+            NodeKind::Inner {
+                distinct: [a, b], ..
+            } => &self.distinct[a as usize..b as usize],
+        }
+    }
+
     /// The limits the tree was built with.
     pub fn params(&self) -> KdTreeParams {
         self.params
@@ -147,8 +176,9 @@ impl KdTree {
     ///
     /// Children partition their parent's cell at the split; `bounds` is the
     /// union of the boxes below clipped to the cell, `cost` their triangles;
-    /// reference ranges nest; every sample point of every object's box lies
-    /// in a leaf that references the object.
+    /// reference ranges nest; an inner node's objects are its refs' ids once
+    /// each; every sample point of every object's box lies in a leaf that
+    /// references the object.
     pub fn validate(&self, scene: &Scene) -> Result<(), String> {
         let objects = scene.objects();
         let Some(root) = self.root() else {
@@ -204,6 +234,7 @@ impl KdTree {
                 axis,
                 split,
                 children,
+                ..
             } => {
                 let v = p[axis as usize];
                 if v <= split {
@@ -222,6 +253,11 @@ impl KdTree {
         let mut distinct: Vec<u32> = refs.to_vec();
         distinct.sort_unstable();
         distinct.dedup();
+        if self.node_objects(n) != distinct {
+            return Err(format!(
+                "node {i}: its objects are not its refs' ids once each, ascending"
+            ));
+        }
         let bounds = distinct.iter().fold(Aabb::EMPTY, |a, &o| {
             a.merged(&scene.objects()[o as usize].bounds.clipped(&n.cell))
         });
@@ -247,6 +283,7 @@ impl KdTree {
                 axis,
                 split,
                 children,
+                ..
             } => {
                 let a = axis as usize;
                 let (l, h) = (
@@ -297,6 +334,7 @@ struct Builder {
     params: KdTreeParams,
     nodes: Vec<KdNode>,
     refs: Vec<u32>,
+    distinct: Vec<u32>,
 }
 
 impl Builder {
@@ -335,10 +373,13 @@ impl Builder {
                 hc.min[axis] = split;
                 let l = self.build(lc, low, depth + 1);
                 let h = self.build(hc, high, depth + 1);
+                let first = self.distinct.len() as u32;
+                self.distinct.extend_from_slice(&items);
                 self.nodes[index as usize].kind = NodeKind::Inner {
                     axis: axis as u8,
                     split,
                     children: [l, h],
+                    distinct: [first, self.distinct.len() as u32],
                 };
             }
             None => self.refs.extend_from_slice(&items),

@@ -437,6 +437,7 @@ impl RasterCulling {
                     axis,
                     split,
                     children,
+                    ..
                 } => {
                     // Near child on top of the stack.
                     let below = eye[axis as usize] < split as f64;
