@@ -9,7 +9,9 @@
 //! valgrind, count only the culls with
 //! `valgrind --tool=callgrind --toggle-collect='*cull_blocking*' target/release/examples/cull_profile …`:
 //! instruction counts do not drift with the machine as times do.
-//! `DDO_LEAF_TRIANGLES=128` bakes `ddo`'s octree with that many triangles
+//! `ONLY=3,14,20` culls only those frames (for a profile of the frames
+//! near the median); `PER_FRAME=1` prints each frame's median time to
+//! stderr. `DDO_LEAF_TRIANGLES=128` bakes `ddo`'s octree with that many triangles
 //! a leaf (`--ddo-leaf-triangles` of `pvsd eval`) instead of the default.
 
 use std::path::Path;
@@ -69,6 +71,11 @@ fn main() {
     let (mut pvs, mut nodes) = (0u64, 0u64);
     for rep in 0..reps {
         for (i, cam) in cams.iter().enumerate() {
+            if let Ok(only) = std::env::var("ONLY") {
+                if !only.split(',').any(|f| f.parse::<usize>().ok() == Some(i)) {
+                    continue;
+                }
+            }
             let mut next = job.take().unwrap();
             next.view = View::new(*cam, &scene).unwrap();
             if !kind.follows_on() {
@@ -84,8 +91,18 @@ fn main() {
             job = Some(culled.job);
         }
     }
+    if std::env::var("PER_FRAME").is_ok() {
+        for (i, t) in times.iter().enumerate() {
+            let mut t = t.clone();
+            t.sort_by(f64::total_cmp);
+            if !t.is_empty() {
+                eprintln!("frame {i} {:.1}", t[t.len() / 2]);
+            }
+        }
+    }
     let mut medians: Vec<f64> = times
         .iter_mut()
+        .filter(|t| !t.is_empty())
         .map(|t| {
             t.sort_by(f64::total_cmp);
             t[t.len() / 2]

@@ -218,6 +218,34 @@ impl DepthBuffer {
     /// Whether every cell of `rect` holds a value above `w` (an occluder
     /// nearer than inverse depth `w` covers all of it).
     pub fn hides(&mut self, rect: CellRect, w: f32) -> bool {
+        self.open_tile(rect, w).is_none()
+    }
+
+    /// A cell of `rect` (column, row) that does not hold a value above
+    /// `w`, if there is one: where an occluder must still be drawn for
+    /// `rect` to be hidden at `w`.
+    pub fn open_cell(&mut self, rect: CellRect, w: f32) -> Option<(usize, usize)> {
+        let (tx, ty) = self.open_tile(rect, w)?;
+        let (x0, x1) = (rect.x0.max(tx * TILE), rect.x1.min(tx * TILE + TILE - 1));
+        let (y0, y1) = (rect.y0.max(ty * TILE), rect.y1.min(ty * TILE + TILE - 1));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                if !self.cell_above((x, y), w) {
+                    return Some((x, y));
+                }
+            }
+        }
+        Some((x0, y0))
+    }
+
+    /// Whether cell `(x, y)` holds a value above `w`.
+    pub fn cell_above(&self, (x, y): (usize, usize), w: f32) -> bool {
+        self.cells[y * self.stride + x] > w
+    }
+
+    /// The first tile (column, row) with a cell of `rect` that does not
+    /// hold a value above `w`.
+    fn open_tile(&mut self, rect: CellRect, w: f32) -> Option<(usize, usize)> {
         // Plain loops: these run for every box and polygon tested, over a
         // few tiles each, where an iterator's set-up costs as much as the
         // tile's test.
@@ -244,13 +272,13 @@ impl DepthBuffer {
                     || self.tile(tx, ty) > w
                     || self.cells_hide(rect, tx, ty, w);
                 if !hidden {
-                    return false;
+                    return Some((tx, ty));
                 }
                 tx += 1;
             }
             ty += 1;
         }
-        true
+        None
     }
 
     /// Whether the cells `rect` has in tile `(tx, ty)` all hold a value
@@ -355,5 +383,43 @@ mod tests {
         assert_eq!((b.tile(0, 0), b.tile(1, 0)), (1.0, 3.0));
         assert!(b.hides(rect(8, 0, 15, 7), 2.9));
         assert!(!b.hides(rect(7, 0, 15, 7), 2.9));
+    }
+
+    #[test]
+    fn an_open_cell_is_one_the_rect_is_not_hidden_at() {
+        // Random spans over 3×2 tiles; every rect either hides or names a
+        // cell of its own whose value does not lie above `w`.
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = |n: usize| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % n as u64) as usize
+        };
+        for kernel in [Kernel::Scalar, Kernel::detect()] {
+            let mut b = DepthBuffer::new(kernel);
+            for _ in 0..200 {
+                b.reset(21, 13);
+                for _ in 0..next(30) {
+                    let (x0, y) = (next(21), next(13));
+                    let x1 = (x0 + next(21)).min(20);
+                    b.raise_span(y, x0, x1, next(4) as f32, 0.0);
+                }
+                let (x0, y0) = (next(21), next(13));
+                let r = rect(x0, y0, (x0 + next(21)).min(20), (y0 + next(13)).min(12));
+                let w = next(4) as f32 - 0.5;
+                match b.open_cell(r, w) {
+                    None => assert!(b.hides(r, w)),
+                    Some((x, y)) => {
+                        assert!(!b.hides(r, w));
+                        assert!((r.x0..=r.x1).contains(&x) && (r.y0..=r.y1).contains(&y));
+                        assert!(
+                            !b.cell_above((x, y), w),
+                            "{r:?} at {w}: ({x}, {y}) is covered"
+                        );
+                    }
+                }
+            }
+        }
     }
 }

@@ -117,6 +117,16 @@ impl Screen {
         (self.cols, self.rows)
     }
 
+    /// All the cells.
+    pub fn everywhere(&self) -> CellRect {
+        CellRect {
+            x0: 0,
+            y0: 0,
+            x1: self.cols - 1,
+            y1: self.rows - 1,
+        }
+    }
+
     fn view_of(&self, p: DVec3) -> DVec3 {
         let d = p - self.eye;
         DVec3::new(d.dot(self.right), d.dot(self.up), d.dot(self.forward))

@@ -19,18 +19,29 @@
 //!   of it is large enough to fill a cell (option `proxies=false` leaves
 //!   them out).
 //!
-//! **Per frame.** First the buffer gets what is likely to hide the most:
-//! the objects a session's last frame found visible (the first of the two
-//! passes of modern GPU culling). Then the walk: near child first, a node
-//! outside the frustum or hidden is dropped with its subtree; in a leaf,
-//! each object's part in the cell is tested, and an object found visible
-//! is added to the answer and its surfaces drawn at once (nearest cluster
-//! first, those at least `min_size` pixels across and `min_width` cells
-//! wide, up to `budget` a frame), so that what it hides farther on is
-//! culled — the second pass. (Drawing the scene's large occluders
-//! first, as the object-space methods pick them, was measured slower on
-//! every scene: the walk draws them when it reaches them.) Avatars and
-//! movable objects are tested last, against the whole buffer.
+//! **Per frame.** First the buffer is offered what is likely to hide the
+//! most: the objects a session's last frame found visible (the first of
+//! the two passes of modern GPU culling). Then the walk: near child
+//! first, a node outside the frustum or hidden is dropped with its
+//! subtree; in a leaf, each object's part in the cell is tested, and an
+//! object found visible is added to the answer and offered, so that what
+//! it hides farther on is culled — the second pass. (Drawing the scene's
+//! large occluders first, as the object-space methods pick them, was
+//! measured slower on every scene: the walk draws them when it reaches
+//! them.) Avatars and movable objects are tested last, against the whole
+//! buffer.
+//!
+//! **Drawn when a test needs it.** An offered object waits by its box; a
+//! box tested and not hidden names a cell of its outline still open, and
+//! the offered objects whose boxes cover that cell and may be nearer are
+//! split into their clusters, and those clusters drawn (nearest first,
+//! surfaces at least `min_size` pixels across and `min_width` cells
+//! wide, up to `budget` a frame), until the cell closes or nothing
+//! offered covers it. A cluster not drawn can change the test only in the
+//! cells it covers, so each test answers as if everything offered so far
+//! were drawn (the budget aside), and what hides nothing tested is never drawn: an object
+//! offered last, or off to the side of everything behind it, costs a
+//! footprint.
 //!
 //! **Why it never drops a visible object.** The buffer's rule
 //! ([`crate::cull::depth`]) hides a box only behind drawn polygons that
@@ -52,7 +63,7 @@ use std::sync::Arc;
 use proxies::Proxies;
 use surfaces::{Outside, Surfaces};
 
-use super::depth::{DepthBuffer, Footprint, Kernel, Scratch, Screen};
+use super::depth::{CellRect, DepthBuffer, Footprint, Kernel, Scratch, Screen};
 use super::occlusion::Visibility;
 use super::occlusion::hierarchy;
 use super::pool::BufferPool;
@@ -185,17 +196,20 @@ pub struct RasterCulling {
 struct Canvas {
     buffer: DepthBuffer,
     scratch: Scratch,
-    /// Per object, the frame that last drew its surfaces.
-    drawn: Vec<u32>,
+    /// Per object, the frame that last offered its surfaces.
+    offered: Vec<u32>,
     frame: u32,
     stack: Vec<(u32, PlaneMask)>,
-    /// An object's clusters to draw, with their scale and the frustum
-    /// planes they cross, nearest first.
-    order: Vec<(f64, u32, PlaneMask)>,
+    /// Clusters of visible objects not drawn yet.
+    pending: Vec<Pending>,
+    /// Those a test is about to draw, nearest first.
+    due: Vec<Pending>,
     /// How many times a box that is not hidden whole is halved and tried again.
     splits: u32,
     /// Polygons this frame may still draw.
     budget: u32,
+    /// Surfaces smaller than this on screen (pixels across) are not drawn.
+    min_size: f64,
     /// Surfaces narrower than this on screen (pixels, not cells) are not drawn.
     min_width: f64,
     /// Whether closed objects' proxies are drawn.
@@ -207,12 +221,14 @@ impl Canvas {
         Canvas {
             buffer: DepthBuffer::new(kernel),
             scratch: Scratch::default(),
-            drawn: Vec::new(),
+            offered: Vec::new(),
             frame: 0,
             stack: Vec::new(),
-            order: Vec::new(),
+            pending: Vec::new(),
+            due: Vec::new(),
             splits: 0,
             budget: 0,
+            min_size: 0.0,
             min_width: 0.0,
             proxies: true,
         }
@@ -221,51 +237,55 @@ impl Canvas {
     /// Starts a frame over `objects` objects.
     fn begin(&mut self, objects: usize, (cols, rows): (usize, usize), state: &RasterState) {
         (self.splits, self.budget, self.proxies) = (state.splits, state.budget, state.proxies);
-        self.min_width = state.min_width * state.cell as f64;
+        (self.min_size, self.min_width) = (state.min_size, state.min_width * state.cell as f64);
         self.buffer.reset(cols, rows);
-        self.drawn.resize(objects, 0);
+        self.pending.clear();
+        self.offered.resize(objects, 0);
         self.frame = self.frame.wrapping_add(1);
         if self.frame == 0 {
-            self.drawn.fill(0);
+            self.offered.fill(0);
             self.frame = 1;
         }
     }
 
-    /// What the buffer says of a box.
-    fn visibility(&mut self, screen: &Screen, b: &Aabb) -> Visibility {
-        if self.hidden(screen, b, self.splits) {
-            Visibility::Invisible
-        } else {
-            Visibility::Partial
-        }
-    }
-
-    /// Whether the buffer hides all of `b`: its outline at its nearest
-    /// depth, or else each of its halves (along its longest side, down to
-    /// `splits` times), whose nearest depths are farther.
-    fn hidden(&mut self, screen: &Screen, b: &Aabb, splits: u32) -> bool {
-        let whole = match screen.footprint(b) {
-            Footprint::Near => false,
-            Footprint::Nothing => return true,
-            Footprint::Cells(rect, w) => self.buffer.hides(rect, w),
-        };
-        whole
-            || (splits > 0 && {
-                let axis = b.longest_axis();
-                let mid = (b.min[axis] + b.max[axis]) * 0.5;
-                let (mut lo, mut hi) = (*b, *b);
-                (lo.max[axis], hi.min[axis]) = (mid, mid);
-                self.hidden(screen, &lo, splits - 1) && self.hidden(screen, &hi, splits - 1)
-            })
-    }
-
     fn heap_bytes(&self) -> usize {
         self.buffer.heap_bytes()
-            + self.drawn.capacity() * 4
+            + self.offered.capacity() * 4
             + self.stack.capacity() * 8
-            + self.order.capacity() * 16
+            + (self.pending.capacity() + self.due.capacity()) * std::mem::size_of::<Pending>()
     }
 }
+
+/// A visible object, or one of its clusters, offered for drawing: drawn
+/// only when a box it may hide is tested, so that what hides nothing costs
+/// nothing.
+#[derive(Clone, Copy, Debug)]
+struct Pending {
+    object: u32,
+    /// The cluster's index among the object's, or [`WHOLE`].
+    cluster: u32,
+    /// Pixels per scene unit at its nearest depth.
+    scale: f64,
+    /// The frustum planes its box crosses.
+    crossed: PlaneMask,
+    /// Which side of its surfaces faces away from the eye (see
+    /// [`RasterCulling::offer_object`]).
+    away: f64,
+    /// Whether the eye is outside the object's box and the box beyond
+    /// the near plane: its proxies may be drawn.
+    outside: bool,
+    /// The cells its box may cover, and the greatest inverse depth any
+    /// of its surfaces can write.
+    rect: CellRect,
+    w: f32,
+}
+
+/// Objects of at most this many clusters are drawn when found visible,
+/// not offered to wait.
+const EAGER_CLUSTERS: usize = 2;
+
+/// [`Pending::cluster`] of an object not yet split into its clusters.
+const WHOLE: u32 = u32::MAX;
 
 /// Canvases of clients that are gone, lent to new ones: a stateless
 /// request would otherwise allocate, and fault in, a whole buffer.
@@ -312,111 +332,231 @@ impl Drop for RasterState {
 }
 
 impl RasterCulling {
-    /// Draws the surfaces of object `id` (once a frame) that are at least
-    /// `min_size` pixels across.
-    fn draw_object(&self, view: &View, screen: &Screen, id: u32, min_size: f64, canvas: &mut Canvas) {
-        if canvas.drawn[id as usize] == canvas.frame {
+    /// Offers the surfaces of object `id` (once a frame) for drawing: the
+    /// object waits in the canvas, by its box, until a box behind it is
+    /// tested ([`RasterCulling::hides_drawing`]); then its clusters do.
+    fn offer_object(&self, view: &View, screen: &Screen, id: u32, canvas: &mut Canvas) {
+        if canvas.offered[id as usize] == canvas.frame {
             return;
         }
-        canvas.drawn[id as usize] = canvas.frame;
-        let eye = view.eye();
+        canvas.offered[id as usize] = canvas.frame;
         let bounds = &self.scene.objects()[id as usize].bounds;
+        let (side, crossed) = view.frustum().classify(bounds, ALL_PLANES);
+        let footprint = screen.footprint(bounds);
+        let (rect, w) = match footprint {
+            Footprint::Nothing => return,
+            Footprint::Near => (screen.everywhere(), f32::INFINITY),
+            Footprint::Cells(rect, w) => (rect, w),
+        };
+        if side == Side::Outside {
+            return;
+        }
         // Seen from outside its box, all of it beyond the near plane, a
         // closed object's faces turned away lie behind those turned
         // towards the eye, and its proxies behind its faces.
         // (Decided on the box's own corners, the near plane moved by the
         // rounding slack, not on its rounded centre and extent.)
-        let outside =
-            bounds.distance_to(eye) > 0.0 && !matches!(screen.footprint(bounds), Footprint::Near);
+        let outside = bounds.distance_to(view.eye()) > 0.0 && footprint != Footprint::Near;
         let away = match self.surfaces.outside(id) {
             Outside::Front if outside => -1.0,
             Outside::Back if outside => 1.0,
             _ => 0.0,
         };
-        let planes = view.frustum().planes();
-        let min_width = canvas.min_width;
-        // Clusters on view and large enough, nearest first: a near cluster
-        // drawn lets the hidden test skip those behind it, and a budget
-        // goes to what hides the most.
-        let clusters = self.surfaces.clusters_of(id);
-        let mut order = std::mem::take(&mut canvas.order);
-        order.clear();
-        for (i, cluster) in clusters.iter().enumerate() {
-            if cluster.inner && !(outside && canvas.proxies) {
+        let object = Pending {
+            object: id,
+            cluster: WHOLE,
+            scale: 0.0,
+            crossed,
+            away,
+            outside,
+            rect,
+            w,
+        };
+        if self.surfaces.clusters_of(id).len() > EAGER_CLUSTERS {
+            canvas.pending.push(object);
+            return;
+        }
+        // A small object is drawn at once: waiting would cost each test
+        // that passes it about as much as drawing it.
+        let start = canvas.pending.len();
+        self.offer_clusters(view, screen, &object, canvas);
+        let mut due = std::mem::take(&mut canvas.due);
+        due.clear();
+        due.extend(canvas.pending.drain(start..));
+        due.sort_unstable_by(|a, b| b.w.total_cmp(&a.w));
+        for p in &due {
+            self.draw_cluster(view, screen, p, canvas);
+        }
+        canvas.due = due;
+    }
+
+    /// Offers the clusters of an offered object in its place: each on
+    /// view with a surface at least `min_size` pixels across.
+    fn offer_clusters(&self, view: &View, screen: &Screen, object: &Pending, canvas: &mut Canvas) {
+        for (i, cluster) in self.surfaces.clusters_of(object.object).iter().enumerate() {
+            if cluster.inner && !(object.outside && canvas.proxies) {
                 continue;
             }
             let scale = screen.pixels_per_unit(&cluster.bounds);
-            if 2.0 * cluster.largest * scale < min_size {
+            if 2.0 * cluster.largest * scale < canvas.min_size {
                 continue;
             }
-            let (side, crossed) = view.frustum().classify(&cluster.bounds, ALL_PLANES);
+            let (rect, w) = match screen.footprint(&cluster.bounds) {
+                Footprint::Nothing => continue,
+                Footprint::Near => (screen.everywhere(), f32::INFINITY),
+                Footprint::Cells(rect, w) => (rect, w),
+            };
+            // Only the planes the object's box crosses can cut its clusters.
+            let (side, crossed) = view.frustum().classify(&cluster.bounds, object.crossed);
             if side != Side::Outside {
-                order.push((scale, i as u32, crossed));
+                canvas.pending.push(Pending {
+                    cluster: i as u32,
+                    scale,
+                    crossed,
+                    // Proxies' normals point out of their boxes.
+                    away: if cluster.inner { -1.0 } else { object.away },
+                    rect,
+                    w,
+                    ..*object
+                });
             }
         }
-        order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-        for &(scale, i, crossed) in &order {
-            let cluster = &clusters[i as usize];
-            if canvas.budget == 0 {
-                break;
+    }
+
+    /// Whether the buffer hides `rect` at inverse depth `w` once the
+    /// offered clusters that can make a difference are drawn: while some
+    /// cell of `rect` is open, those whose box covers that cell and may be
+    /// nearer than `w` are drawn, nearest first. A cluster drawn later
+    /// can still hide `rect` only where it covers an open cell, so the
+    /// answer is the one drawing every offered cluster at once would give,
+    /// for drawing only what a test needs.
+    fn hides_drawing(&self, view: &View, screen: &Screen, rect: CellRect, w: f32, canvas: &mut Canvas) -> bool {
+        if canvas.pending.is_empty() {
+            return canvas.buffer.hides(rect, w);
+        }
+        let mut due = std::mem::take(&mut canvas.due);
+        let hidden = loop {
+            let Some((x, y)) = canvas.buffer.open_cell(rect, w) else {
+                break true;
+            };
+            due.clear();
+            let mut k = 0;
+            while k < canvas.pending.len() {
+                let p = &canvas.pending[k];
+                if p.w >= w && p.rect.x0 <= x && x <= p.rect.x1 && p.rect.y0 <= y && y <= p.rect.y1 {
+                    due.push(canvas.pending.swap_remove(k));
+                } else {
+                    k += 1;
+                }
             }
-            // Drawing fewer surfaces only hides less: skip clusters and
-            // surfaces hidden already, too small or off the view, and
-            // back faces of closed objects.
-            // Whole, not halved: a cluster not hidden whole has each of its
-            // polygons tested on its own anyway.
-            if canvas.hidden(screen, &cluster.bounds, 0) {
+            if due.is_empty() {
+                break false;
+            }
+            // Objects are split into their clusters first.
+            if due.iter().any(|p| p.cluster == WHOLE) {
+                for p in &due {
+                    if p.cluster == WHOLE {
+                        self.offer_clusters(view, screen, p, canvas);
+                    } else {
+                        canvas.pending.push(*p);
+                    }
+                }
                 continue;
             }
-            // Proxies' normals point out of their boxes.
-            let away = if cluster.inner { -1.0 } else { away };
-            for s in self.surfaces.of_cluster(cluster) {
-                // Largest first: the first too small at the cluster's
-                // nearest depth ends it.
-                if 2.0 * s.radius * scale < min_size {
+            due.sort_unstable_by(|a, b| b.w.total_cmp(&a.w));
+            for (k, p) in due.iter().enumerate() {
+                self.draw_cluster(view, screen, p, canvas);
+                if canvas.buffer.cell_above((x, y), w) {
+                    canvas.pending.extend_from_slice(&due[k + 1..]);
                     break;
                 }
-                // Only the planes the cluster's box crosses can have the
-                // surface outside.
-                if away * s.plane.signed_distance(eye) > 0.0
-                    || planes.iter().enumerate().any(|(k, p)| {
-                        crossed & (1 << k) != 0 && p.signed_distance(s.centre) < -s.radius
-                    })
-                    || {
-                        let across = screen.pixels_across(s.centre, s.radius);
-                        across < min_size || across * s.breadth < min_width
-                    }
-                {
-                    continue;
+            }
+        };
+        canvas.due = due;
+        hidden
+    }
+
+    /// Draws the surfaces of one offered cluster, up to the frame's budget.
+    fn draw_cluster(&self, view: &View, screen: &Screen, p: &Pending, canvas: &mut Canvas) {
+        // Drawing fewer surfaces only hides less: skip clusters and
+        // surfaces hidden already, too small or off the view, and back
+        // faces of closed objects. Whole, not halved: a cluster not
+        // hidden whole has each of its polygons tested on its own anyway.
+        if canvas.budget == 0 || canvas.buffer.hides(p.rect, p.w) {
+            return;
+        }
+        let (eye, planes) = (view.eye(), view.frustum().planes());
+        let (min_size, min_width) = (canvas.min_size, canvas.min_width);
+        let cluster = &self.surfaces.clusters_of(p.object)[p.cluster as usize];
+        for s in self.surfaces.of_cluster(cluster) {
+            // Largest first: the first too small at the cluster's nearest
+            // depth ends it.
+            if 2.0 * s.radius * p.scale < min_size {
+                break;
+            }
+            // Only the planes the cluster's box crosses can have the
+            // surface outside.
+            if p.away * s.plane.signed_distance(eye) > 0.0
+                || planes.iter().enumerate().any(|(k, plane)| {
+                    p.crossed & (1 << k) != 0 && plane.signed_distance(s.centre) < -s.radius
+                })
+                || {
+                    let across = screen.pixels_across(s.centre, s.radius);
+                    across < min_size || across * s.breadth < min_width
                 }
-                let drawn = screen.draw(
-                    self.surfaces.corners(s),
-                    &s.plane,
-                    s.thickness,
-                    &mut canvas.buffer,
-                    &mut canvas.scratch,
-                );
-                if drawn {
-                    canvas.budget -= 1;
-                    if canvas.budget == 0 {
-                        break;
-                    }
+            {
+                continue;
+            }
+            let drawn = screen.draw(
+                self.surfaces.corners(s),
+                &s.plane,
+                s.thickness,
+                &mut canvas.buffer,
+                &mut canvas.scratch,
+            );
+            if drawn {
+                canvas.budget -= 1;
+                if canvas.budget == 0 {
+                    return;
                 }
             }
         }
-        canvas.order = order;
+    }
+
+    /// What the buffer says of a box.
+    fn visibility(&self, view: &View, screen: &Screen, b: &Aabb, splits: u32, canvas: &mut Canvas) -> Visibility {
+        if self.hidden(view, screen, b, splits, canvas) {
+            Visibility::Invisible
+        } else {
+            Visibility::Partial
+        }
+    }
+
+    /// Whether the buffer hides all of `b`: its outline at its nearest
+    /// depth, or else each of its halves (along its longest side, down to
+    /// `splits` times), whose nearest depths are farther. An outline not
+    /// hidden first has the offered clusters that may hide it drawn.
+    fn hidden(&self, view: &View, screen: &Screen, b: &Aabb, splits: u32, canvas: &mut Canvas) -> bool {
+        let whole = match screen.footprint(b) {
+            Footprint::Near => false,
+            Footprint::Nothing => return true,
+            Footprint::Cells(rect, w) => self.hides_drawing(view, screen, rect, w, canvas),
+        };
+        whole
+            || (splits > 0 && {
+                let axis = b.longest_axis();
+                let mid = (b.min[axis] + b.max[axis]) * 0.5;
+                let (mut lo, mut hi) = (*b, *b);
+                (lo.max[axis], hi.min[axis]) = (mid, mid);
+                self.hidden(view, screen, &lo, splits - 1, canvas)
+                    && self.hidden(view, screen, &hi, splits - 1, canvas)
+            })
     }
 
     /// The walk: front to back, nodes and objects tested against the
-    /// buffer, visible objects added and drawn as they are found.
-    fn walk(
-        &self,
-        view: &View,
-        screen: &Screen,
-        min_size: f64,
-        canvas: &mut Canvas,
-        out: &mut VisibleSet,
-    ) -> u64 {
+    /// buffer, visible objects added and offered for drawing as they are
+    /// found.
+    fn walk(&self, view: &View, screen: &Screen, canvas: &mut Canvas, out: &mut VisibleSet) -> u64 {
         let (nodes, objects) = (self.tree.nodes(), self.scene.objects());
         let eye = view.eye();
         let mut tested = 0u64;
@@ -429,7 +569,9 @@ impl RasterCulling {
             let node = &nodes[i as usize];
             tested += 1;
             let (side, mask) = view.frustum().classify(&node.bounds, mask);
-            if side == Side::Outside || canvas.hidden(screen, &node.bounds, canvas.splits.min(NODE_SPLITS)) {
+            if side == Side::Outside
+                || self.hidden(view, screen, &node.bounds, canvas.splits.min(NODE_SPLITS), canvas)
+            {
                 continue;
             }
             match node.kind {
@@ -456,10 +598,11 @@ impl RasterCulling {
                         }
                         let part = objects[id as usize].bounds.clipped(&node.cell);
                         if view.frustum().classify_exact(&part, mask).0 != Side::Outside
-                            && canvas.visibility(screen, &part) != Visibility::Invisible
+                            && self.visibility(view, screen, &part, canvas.splits, canvas)
+                                != Visibility::Invisible
                         {
                             out.push(id);
-                            self.draw_object(view, screen, id, min_size, canvas);
+                            self.offer_object(view, screen, id, canvas);
                         }
                     }
                 }
@@ -520,15 +663,17 @@ impl CullMethod for RasterCulling {
         let mut canvas = state.canvas.take().unwrap_or_else(|| state.pool.take(state.kernel));
         canvas.begin(self.scene.objects().len(), screen.cells(), state);
         let canvas = state.canvas.insert(canvas);
-        let RasterState { min_size, last, .. } = state;
+        let last = &mut state.last;
 
         // What likely hides the most, first: last frame's visible objects.
         for &id in last.iter() {
-            self.draw_object(view, &screen, id, *min_size, canvas);
+            self.offer_object(view, &screen, id, canvas);
         }
 
-        let tested = self.walk(view, &screen, *min_size, canvas, out);
-        hierarchy::test_occludees(occludees, &mut |_, b| canvas.visibility(&screen, b));
+        let tested = self.walk(view, &screen, canvas, out);
+        hierarchy::test_occludees(occludees, &mut |_, b| {
+            self.visibility(view, &screen, b, canvas.splits, canvas)
+        });
         last.clear();
         last.extend_from_slice(out.ids());
         Ok(CullCounters {
