@@ -278,6 +278,8 @@ struct Pending {
     /// of its surfaces can write.
     rect: CellRect,
     w: f32,
+    /// How far its box is from the eye: clusters are drawn nearest first.
+    distance: f64,
 }
 
 /// Objects of at most this many clusters are drawn when found visible,
@@ -371,6 +373,7 @@ impl RasterCulling {
             outside,
             rect,
             w,
+            distance: 0.0,
         };
         if self.surfaces.clusters_of(id).len() > EAGER_CLUSTERS {
             canvas.pending.push(object);
@@ -383,7 +386,7 @@ impl RasterCulling {
         let mut due = std::mem::take(&mut canvas.due);
         due.clear();
         due.extend(canvas.pending.drain(start..));
-        due.sort_unstable_by(|a, b| b.w.total_cmp(&a.w));
+        due.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
         for p in &due {
             self.draw_cluster(view, screen, p, canvas);
         }
@@ -417,6 +420,7 @@ impl RasterCulling {
                     away: if cluster.inner { -1.0 } else { object.away },
                     rect,
                     w,
+                    distance: cluster.bounds.distance_to(view.eye()),
                     ..*object
                 });
             }
@@ -463,7 +467,7 @@ impl RasterCulling {
                 }
                 continue;
             }
-            due.sort_unstable_by(|a, b| b.w.total_cmp(&a.w));
+            due.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
             for (k, p) in due.iter().enumerate() {
                 self.draw_cluster(view, screen, p, canvas);
                 if canvas.buffer.cell_above((x, y), w) {
