@@ -39,9 +39,10 @@
 //! wide, up to `budget` a frame), until the cell closes or nothing
 //! offered covers it. A cluster not drawn can change the test only in the
 //! cells it covers, so each test answers as if everything offered so far
-//! were drawn (the budget aside), and what hides nothing tested is never drawn: an object
-//! offered last, or off to the side of everything behind it, costs a
-//! footprint.
+//! were drawn (the budget aside), and what hides nothing tested is never
+//! drawn: an object offered last, or off to the side of everything behind
+//! it, costs a footprint. Offers are found by screen bins ([`offers`]);
+//! an object of at most [`EAGER_CLUSTERS`] clusters is drawn at once.
 //!
 //! **Why it never drops a visible object.** The buffer's rule
 //! ([`crate::cull::depth`]) hides a box only behind drawn polygons that
@@ -55,11 +56,13 @@
 //! every pixel centre the face covers ([`proxies`] gives the argument). What is drawn, and in which order, changes only how much is
 //! culled.
 
+mod offers;
 mod proxies;
 mod surfaces;
 
 use std::sync::Arc;
 
+use offers::{Offer, Offers, WHOLE};
 use proxies::Proxies;
 use surfaces::{Outside, Surfaces};
 
@@ -200,10 +203,12 @@ struct Canvas {
     offered: Vec<u32>,
     frame: u32,
     stack: Vec<(u32, PlaneMask)>,
-    /// Clusters of visible objects not drawn yet.
-    pending: Vec<Pending>,
-    /// Those a test is about to draw, nearest first.
-    due: Vec<Pending>,
+    /// Visible objects and clusters offered and not drawn yet.
+    offers: Offers,
+    /// The offers a test is about to draw, nearest first.
+    due: Vec<u32>,
+    /// Clusters of an object drawn at once.
+    fresh: Vec<Offer>,
     /// How many times a box that is not hidden whole is halved and tried again.
     splits: u32,
     /// Polygons this frame may still draw.
@@ -224,8 +229,9 @@ impl Canvas {
             offered: Vec::new(),
             frame: 0,
             stack: Vec::new(),
-            pending: Vec::new(),
+            offers: Offers::default(),
             due: Vec::new(),
+            fresh: Vec::new(),
             splits: 0,
             budget: 0,
             min_size: 0.0,
@@ -239,7 +245,7 @@ impl Canvas {
         (self.splits, self.budget, self.proxies) = (state.splits, state.budget, state.proxies);
         (self.min_size, self.min_width) = (state.min_size, state.min_width * state.cell as f64);
         self.buffer.reset(cols, rows);
-        self.pending.clear();
+        self.offers.reset((cols, rows));
         self.offered.resize(objects, 0);
         self.frame = self.frame.wrapping_add(1);
         if self.frame == 0 {
@@ -252,42 +258,17 @@ impl Canvas {
         self.buffer.heap_bytes()
             + self.offered.capacity() * 4
             + self.stack.capacity() * 8
-            + (self.pending.capacity() + self.due.capacity()) * std::mem::size_of::<Pending>()
+            + self.offers.heap_bytes()
+            + self.due.capacity() * 4
+            + self.fresh.capacity() * std::mem::size_of::<Offer>()
     }
 }
 
-/// A visible object, or one of its clusters, offered for drawing: drawn
-/// only when a box it may hide is tested, so that what hides nothing costs
-/// nothing.
-#[derive(Clone, Copy, Debug)]
-struct Pending {
-    object: u32,
-    /// The cluster's index among the object's, or [`WHOLE`].
-    cluster: u32,
-    /// Pixels per scene unit at its nearest depth.
-    scale: f64,
-    /// The frustum planes its box crosses.
-    crossed: PlaneMask,
-    /// Which side of its surfaces faces away from the eye (see
-    /// [`RasterCulling::offer_object`]).
-    away: f64,
-    /// Whether the eye is outside the object's box and the box beyond
-    /// the near plane: its proxies may be drawn.
-    outside: bool,
-    /// The cells its box may cover, and the greatest inverse depth any
-    /// of its surfaces can write.
-    rect: CellRect,
-    w: f32,
-    /// How far its box is from the eye: clusters are drawn nearest first.
-    distance: f64,
-}
-
 /// Objects of at most this many clusters are drawn when found visible,
-/// not offered to wait.
-const EAGER_CLUSTERS: usize = 2;
-
-/// [`Pending::cluster`] of an object not yet split into its clusters.
-const WHOLE: u32 = u32::MAX;
+/// not offered to wait: waiting would cost each failing test a look at
+/// them, about what drawing them costs (the generated CAD body's 400
+/// parts on its orbit: 7.8 ms a frame at 2, 7.7 at 8; docs/raster.md).
+const EAGER_CLUSTERS: usize = 8;
 
 /// Canvases of clients that are gone, lent to new ones: a stateless
 /// request would otherwise allocate, and fault in, a whole buffer.
@@ -364,7 +345,7 @@ impl RasterCulling {
             Outside::Back if outside => 1.0,
             _ => 0.0,
         };
-        let object = Pending {
+        let object = Offer {
             object: id,
             cluster: WHOLE,
             scale: 0.0,
@@ -376,32 +357,39 @@ impl RasterCulling {
             distance: 0.0,
         };
         if self.surfaces.clusters_of(id).len() > EAGER_CLUSTERS {
-            canvas.pending.push(object);
+            canvas.offers.add(object);
             return;
         }
         // A small object is drawn at once: waiting would cost each test
         // that passes it about as much as drawing it.
-        let start = canvas.pending.len();
-        self.offer_clusters(view, screen, &object, canvas);
-        let mut due = std::mem::take(&mut canvas.due);
-        due.clear();
-        due.extend(canvas.pending.drain(start..));
-        due.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
-        for p in &due {
+        let mut fresh = std::mem::take(&mut canvas.fresh);
+        fresh.clear();
+        self.offer_clusters(view, screen, &object, canvas.min_size, canvas.proxies, &mut fresh);
+        fresh.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
+        for p in &fresh {
             self.draw_cluster(view, screen, p, canvas);
         }
-        canvas.due = due;
+        canvas.fresh = fresh;
     }
 
-    /// Offers the clusters of an offered object in its place: each on
-    /// view with a surface at least `min_size` pixels across.
-    fn offer_clusters(&self, view: &View, screen: &Screen, object: &Pending, canvas: &mut Canvas) {
+    /// Into `out`, the clusters of an offered object: each on view with a
+    /// surface at least `min_size` pixels across (and its proxies' only
+    /// when `proxies`).
+    fn offer_clusters(
+        &self,
+        view: &View,
+        screen: &Screen,
+        object: &Offer,
+        min_size: f64,
+        proxies: bool,
+        out: &mut Vec<Offer>,
+    ) {
         for (i, cluster) in self.surfaces.clusters_of(object.object).iter().enumerate() {
-            if cluster.inner && !(object.outside && canvas.proxies) {
+            if cluster.inner && !(object.outside && proxies) {
                 continue;
             }
             let scale = screen.pixels_per_unit(&cluster.bounds);
-            if 2.0 * cluster.largest * scale < canvas.min_size {
+            if 2.0 * cluster.largest * scale < min_size {
                 continue;
             }
             let (rect, w) = match screen.footprint(&cluster.bounds) {
@@ -412,7 +400,7 @@ impl RasterCulling {
             // Only the planes the object's box crosses can cut its clusters.
             let (side, crossed) = view.frustum().classify(&cluster.bounds, object.crossed);
             if side != Side::Outside {
-                canvas.pending.push(Pending {
+                out.push(Offer {
                     cluster: i as u32,
                     scale,
                     crossed,
@@ -435,43 +423,42 @@ impl RasterCulling {
     /// answer is the one drawing every offered cluster at once would give,
     /// for drawing only what a test needs.
     fn hides_drawing(&self, view: &View, screen: &Screen, rect: CellRect, w: f32, canvas: &mut Canvas) -> bool {
-        if canvas.pending.is_empty() {
+        if canvas.offers.is_empty() {
             return canvas.buffer.hides(rect, w);
         }
         let mut due = std::mem::take(&mut canvas.due);
         let hidden = loop {
-            let Some((x, y)) = canvas.buffer.open_cell(rect, w) else {
+            let Some(cell) = canvas.buffer.open_cell(rect, w) else {
                 break true;
             };
-            due.clear();
-            let mut k = 0;
-            while k < canvas.pending.len() {
-                let p = &canvas.pending[k];
-                if p.w >= w && p.rect.x0 <= x && x <= p.rect.x1 && p.rect.y0 <= y && y <= p.rect.y1 {
-                    due.push(canvas.pending.swap_remove(k));
-                } else {
-                    k += 1;
-                }
-            }
+            canvas.offers.covering(cell, w, &mut due);
             if due.is_empty() {
                 break false;
             }
             // Objects are split into their clusters first.
-            if due.iter().any(|p| p.cluster == WHOLE) {
-                for p in &due {
-                    if p.cluster == WHOLE {
-                        self.offer_clusters(view, screen, p, canvas);
-                    } else {
-                        canvas.pending.push(*p);
+            if due.iter().any(|&i| canvas.offers.get(i).cluster == WHOLE) {
+                let mut fresh = std::mem::take(&mut canvas.fresh);
+                for &i in &due {
+                    if canvas.offers.get(i).cluster == WHOLE {
+                        let object = canvas.offers.take(i);
+                        fresh.clear();
+                        self.offer_clusters(view, screen, &object, canvas.min_size, canvas.proxies, &mut fresh);
+                        for &cluster in &fresh {
+                            canvas.offers.add(cluster);
+                        }
                     }
                 }
+                canvas.fresh = fresh;
                 continue;
             }
-            due.sort_unstable_by(|a, b| a.distance.total_cmp(&b.distance));
-            for (k, p) in due.iter().enumerate() {
-                self.draw_cluster(view, screen, p, canvas);
-                if canvas.buffer.cell_above((x, y), w) {
-                    canvas.pending.extend_from_slice(&due[k + 1..]);
+            due.sort_unstable_by(|&a, &b| {
+                let (a, b) = (canvas.offers.get(a), canvas.offers.get(b));
+                a.distance.total_cmp(&b.distance)
+            });
+            for &i in &due {
+                let cluster = canvas.offers.take(i);
+                self.draw_cluster(view, screen, &cluster, canvas);
+                if canvas.buffer.cell_above(cell, w) {
                     break;
                 }
             }
@@ -481,7 +468,7 @@ impl RasterCulling {
     }
 
     /// Draws the surfaces of one offered cluster, up to the frame's budget.
-    fn draw_cluster(&self, view: &View, screen: &Screen, p: &Pending, canvas: &mut Canvas) {
+    fn draw_cluster(&self, view: &View, screen: &Screen, p: &Offer, canvas: &mut Canvas) {
         // Drawing fewer surfaces only hides less: skip clusters and
         // surfaces hidden already, too small or off the view, and back
         // faces of closed objects. Whole, not halved: a cluster not
