@@ -334,15 +334,14 @@ impl Screen {
                 }
             }
         }
+        // The farthest of a cell's corner centres (the least w): its last
+        // pixel row where w falls downwards (that row clamped to the
+        // screen's last), else its first (never below the last).
         let x_far = 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
+        let y_far = y_first + if wb < 0.0 { bottom } else { 0.0 };
         let base = |k: usize, lo: f64| {
-            // The first and last pixel centres of the cell row.
-            let y_top = y_first + (k as i64 as f64) * c;
-            let y_bot = lesser(y_top + bottom, last_centre);
-            // The farthest of the cell's corner centres: the least w.
-            let x_first = lo * c + x_far;
-            let y = if wb < 0.0 { y_bot } else { y_top };
-            (wa * x_first + wb * y + wc - w_round - f32_margin) as f32
+            let y = lesser(y_far + (k as i64 as f64) * c, last_centre);
+            (wa * (lo * c + x_far) + wb * y + wc - w_round - f32_margin) as f32
         };
         buffer.raise_rows(row_first, spans, base, step32);
         true
