@@ -17,7 +17,8 @@ pub struct Offer {
     pub object: u32,
     /// The cluster's index among the object's, or [`WHOLE`].
     pub cluster: u32,
-    /// Pixels per scene unit at its nearest depth.
+    /// A cluster's pixels per scene unit at its nearest depth (unused for
+    /// a whole object).
     pub scale: f64,
     /// The frustum planes its box crosses.
     pub crossed: PlaneMask,
@@ -31,7 +32,8 @@ pub struct Offer {
     /// of its surfaces can write.
     pub rect: CellRect,
     pub w: f32,
-    /// How far its box is from the eye: clusters are drawn nearest first.
+    /// How far a cluster's box is from the eye: clusters are drawn
+    /// nearest first (unused for a whole object, which is split first).
     pub distance: f64,
 }
 
