@@ -10,7 +10,7 @@
 //! real inverse depth (the occluder is at least that near); a box is
 //! hidden when its own upper bound is below every cell it covers.
 
-use super::kernel::{Kernel, Raise, ScalarRaise};
+use super::kernel::{Kernel, Raise, ScalarRaise, Span};
 
 /// Cells per tile side.
 pub const TILE: usize = 8;
@@ -103,7 +103,7 @@ impl DepthBuffer {
     /// Raises cells `x0..=x1` of row `y` to `base + (x − x0)·step` where
     /// that is larger.
     pub fn raise_span(&mut self, y: usize, x0: usize, x1: usize, base: f32, step: f32) {
-        self.raise_rows(y, &[(x0 as f64, x1 as f64)], |_, _| base, step);
+        self.raise_rows(y, &[(x0 as i32, x1 as i32)], |_, _| base, step);
     }
 
     /// Raises row `first_row + k`, for each `spans[k] = (lo, hi)` with
@@ -114,8 +114,8 @@ impl DepthBuffer {
     pub fn raise_rows(
         &mut self,
         first_row: usize,
-        spans: &[(f64, f64)],
-        base: impl Fn(usize, f64) -> f32,
+        spans: &[Span],
+        base: impl Fn(usize, i32) -> f32,
         step: f32,
     ) {
         match self.kernel {
@@ -134,8 +134,8 @@ impl DepthBuffer {
     unsafe fn raise_rows_avx2(
         &mut self,
         first_row: usize,
-        spans: &[(f64, f64)],
-        base: impl Fn(usize, f64) -> f32,
+        spans: &[Span],
+        base: impl Fn(usize, i32) -> f32,
         step: f32,
     ) {
         // SAFETY: the caller's.
@@ -148,24 +148,43 @@ impl DepthBuffer {
     unsafe fn raise_rows_with<R: Raise>(
         &mut self,
         first_row: usize,
-        spans: &[(f64, f64)],
-        base: impl Fn(usize, f64) -> f32,
+        spans: &[Span],
+        base: impl Fn(usize, i32) -> f32,
         step: f32,
     ) {
+        // Tiles are marked stale once per row of tiles, over the columns
+        // its rows raised: (tile row, first column, last column).
+        let mut band: Option<(usize, usize, usize)> = None;
         for (k, &(lo, hi)) in spans.iter().enumerate() {
             if lo > hi {
                 continue;
             }
-            let (y, x0, x1) = (first_row + k, lo as i64 as usize, hi as i64 as usize);
+            let (y, x0, x1) = (first_row + k, lo as usize, hi as usize);
             debug_assert!(x0 <= x1 && x1 < self.cols && y < self.rows);
             let at = y * self.stride;
             // SAFETY: the caller's.
             unsafe { R::raise(&mut self.cells[at + x0..at + x1 + 1], base(k, lo), step) };
             let w = &mut self.written[y];
             *w = (w.0.min(x0 as u32), w.1.max(x1 as u32 + 1));
-            let first = (y / TILE) * self.tiles_across;
-            self.mark_stale(first + x0 / TILE, first + x1 / TILE);
+            band = match band {
+                Some((ty, a, b)) if ty == y / TILE => Some((ty, a.min(x0), b.max(x1))),
+                Some(done) => {
+                    self.mark_band_stale(done);
+                    Some((y / TILE, x0, x1))
+                }
+                None => Some((y / TILE, x0, x1)),
+            };
         }
+        if let Some(done) = band {
+            self.mark_band_stale(done);
+        }
+    }
+
+    /// Marks stale the tiles of tile row `ty` that hold columns `x0..=x1`.
+    #[inline(always)]
+    fn mark_band_stale(&mut self, (ty, x0, x1): (usize, usize, usize)) {
+        let first = ty * self.tiles_across;
+        self.mark_stale(first + x0 / TILE, first + x1 / TILE);
     }
 
     /// Marks tiles `a..=b` (by index) stale.

@@ -12,6 +12,10 @@ use crate::geom::{ceil_i64, floor_i64, greater, lesser};
 /// [`Kernel::spans`]).
 pub type Bound = (f64, f64, f64);
 
+/// A row's first and last cell inside a polygon (the first above the last
+/// where none is).
+pub type Span = (i32, i32);
+
 /// Which implementation of the loops to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
@@ -46,17 +50,18 @@ impl Kernel {
     /// The cells of consecutive cell rows inside a convex polygon: for row
     /// `k` of `rows`, whose top pixel centre is at `y = y_top + k·cell`,
     /// `(⌈max(0, maxₗ pₗ + qₗ·(y + atₗ))⌉, ⌊min(last_col, minᵣ pᵣ +
-    /// qᵣ·(y + atᵣ))⌋)` over the `left` and `right` bounds, as whole
-    /// numbers (the first above the last where no cell is inside; either
-    /// may then be clamped to one past the row's ends). The bounds must be
-    /// finite, `y_top` and `cell` whole numbers and a half.
+    /// qᵣ·(y + atᵣ))⌋)` over the `left` and `right` bounds (the first
+    /// above the last where no cell is inside; either may then be clamped
+    /// to one past the row's ends). The bounds must be finite, `y_top` and
+    /// `cell` whole numbers and a half, `last_col` a whole number below
+    /// 2³¹ − 1.
     pub fn spans(
         self,
         left: &[Bound],
         right: &[Bound],
         (y_top, cell): (f64, f64),
         last_col: f64,
-        rows: &mut [(f64, f64)],
+        rows: &mut [Span],
     ) {
         match self {
             #[cfg(target_arch = "x86_64")]
@@ -151,7 +156,7 @@ fn spans_scalar(
     right: &[Bound],
     (y_top, cell): (f64, f64),
     last_col: f64,
-    rows: &mut [(f64, f64)],
+    rows: &mut [Span],
 ) {
     for (k, out) in rows.iter_mut().enumerate() {
         // Whole numbers and a half: exact, however summed.
@@ -164,10 +169,10 @@ fn spans_scalar(
         for &(p, q, at) in right {
             last = lesser(last, p + q * (y + at));
         }
-        // Clamped to one past the ends, so that the rounding is exact and
-        // an empty row stays empty.
+        // Clamped to one past the ends, so that an empty row stays empty
+        // and both fit in an i32.
         let (first, last) = (lesser(first, last_col + 1.0), greater(last, -1.0));
-        *out = (ceil_i64(first) as f64, floor_i64(last) as f64);
+        *out = (ceil_i64(first) as i32, floor_i64(last) as i32);
     }
 }
 
@@ -234,7 +239,7 @@ mod avx2 {
         right: &[super::Bound],
         (y_top, cell): (f64, f64),
         last_col: f64,
-        rows: &mut [(f64, f64)],
+        rows: &mut [super::Span],
     ) {
         // Four rows at a time, each lane the scalar loop's operations on
         // its row: `y` is exact, then (y + at), q·, p + in that order.
@@ -260,19 +265,20 @@ mod avx2 {
                 last = _mm256_min_pd(bound(b), last);
             }
             // The clamps: `lesser(first, past)` keeps `first` unless `past`
-            // is smaller, as `min(past, first)` does.
-            // Plus zero: a −0 rounded stays −0 here, where the scalar
-            // loop's integers give +0.
-            let first = _mm256_add_pd(_mm256_ceil_pd(_mm256_min_pd(past, first)), zero);
-            let last = _mm256_add_pd(_mm256_floor_pd(_mm256_max_pd(before, last)), zero);
-            let (mut lo, mut hi) = ([0f64; 4], [0f64; 4]);
-            // SAFETY: four doubles each.
+            // is smaller, as `min(past, first)` does. Whole numbers within
+            // an i32 after them: converted exactly.
+            let first = _mm256_cvttpd_epi32(_mm256_ceil_pd(_mm256_min_pd(past, first)));
+            let last = _mm256_cvttpd_epi32(_mm256_floor_pd(_mm256_max_pd(before, last)));
+            // Interleaved into (first, last) pairs, four rows' worth.
+            let mut pairs = [(0i32, 0i32); 4];
+            // SAFETY: four pairs of i32 are 32 bytes.
             unsafe {
-                _mm256_storeu_pd(lo.as_mut_ptr(), first);
-                _mm256_storeu_pd(hi.as_mut_ptr(), last);
+                let out = pairs.as_mut_ptr().cast::<__m128i>();
+                _mm_storeu_si128(out, _mm_unpacklo_epi32(first, last));
+                _mm_storeu_si128(out.add(1), _mm_unpackhi_epi32(first, last));
             }
-            for (lane, out) in rows[k..].iter_mut().take(4).enumerate() {
-                *out = (lo[lane], hi[lane]);
+            for (out, &pair) in rows[k..].iter_mut().zip(&pairs) {
+                *out = pair;
             }
             k += 4;
         }
@@ -360,18 +366,16 @@ mod tests {
         ) {
             let (c, y_top) = (cell as f64, (first_row * cell) as f64 + 0.5);
             let last_col = (cols - 1) as f64;
-            let (mut a, mut b) = (vec![(0.0, 0.0); count], vec![(1.0, 1.0); count]);
+            let (mut a, mut b) = (vec![(0, 0); count], vec![(1, 1); count]);
             Kernel::Scalar.spans(&left, &right, (y_top, c), last_col, &mut a);
             Kernel::detect().spans(&left, &right, (y_top, c), last_col, &mut b);
-            let bits = |v: &[(f64, f64)]| v.iter().map(|p| (p.0.to_bits(), p.1.to_bits())).collect::<Vec<_>>();
-            prop_assert_eq!(bits(&a), bits(&b));
+            prop_assert_eq!(&a, &b);
             for &(lo, hi) in &a {
-                prop_assert!(lo.fract() == 0.0 && hi.fract() == 0.0);
-                prop_assert!(lo >= 0.0 && hi <= last_col || lo > hi);
+                prop_assert!(lo >= 0 && hi as f64 <= last_col || lo > hi);
             }
             // Against the bounds themselves, at each row's binding row.
             for (k, &(lo, hi)) in a.iter().enumerate().filter(|(_, s)| s.0 <= s.1) {
-                let y = y_top + k as f64 * c;
+                let (y, lo, hi) = (y_top + k as f64 * c, lo as f64, hi as f64);
                 for &(p, q, at) in &left {
                     prop_assert!(lo >= p + q * (y + at));
                 }

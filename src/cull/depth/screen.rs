@@ -13,7 +13,7 @@
 use glam::DVec3;
 
 use super::buffer::{CellRect, DepthBuffer};
-use super::kernel::Bound;
+use super::kernel::{Bound, Span};
 use crate::cull::View;
 use crate::geom::{Aabb, Plane, ceil_i64, floor_i64, greater, lesser};
 
@@ -49,7 +49,7 @@ pub struct Scratch {
     left: Vec<Bound>,
     right: Vec<Bound>,
     level: Vec<(f64, f64)>,
-    spans: Vec<(f64, f64)>,
+    spans: Vec<Span>,
 }
 
 /// What a box covers on screen.
@@ -314,7 +314,7 @@ impl Screen {
         // Grown only: the kernel writes every span it is given.
         let count = row_last + 1 - row_first;
         if scratch.spans.len() < count {
-            scratch.spans.resize(count, (0.0, 0.0));
+            scratch.spans.resize(count, (0, 0));
         }
         let spans = &mut scratch.spans[..count];
         let last_col = (self.cols - 1) as i64 as f64;
@@ -330,7 +330,7 @@ impl Screen {
                     .iter()
                     .any(|&(b, c)| b * y_top + c < 0.0 || b * y_bot + c < 0.0)
                 {
-                    *span = (1.0, 0.0);
+                    *span = (1, 0);
                 }
             }
         }
@@ -339,9 +339,9 @@ impl Screen {
         // screen's last), else its first (never below the last).
         let x_far = 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
         let y_far = y_first + if wb < 0.0 { bottom } else { 0.0 };
-        let base = |k: usize, lo: f64| {
+        let base = move |k: usize, lo: i32| {
             let y = lesser(y_far + (k as i64 as f64) * c, last_centre);
-            (wa * (lo * c + x_far) + wb * y + wc - w_round - f32_margin) as f32
+            (wa * (lo as f64 * c + x_far) + wb * y + wc - w_round - f32_margin) as f32
         };
         buffer.raise_rows(row_first, spans, base, step32);
         true
