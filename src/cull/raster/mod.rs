@@ -392,26 +392,29 @@ impl RasterCulling {
             if 2.0 * cluster.largest * scale < min_size {
                 continue;
             }
+            // Only the planes the object's box crosses can cut its clusters;
+            // tested before the footprint, which costs more and is wanted
+            // for fewer (most of a part reaching out of the view is off it).
+            let (side, crossed) = view.frustum().classify(&cluster.bounds, object.crossed);
+            if side == Side::Outside {
+                continue;
+            }
             let (rect, w) = match screen.footprint(&cluster.bounds) {
                 Footprint::Nothing => continue,
                 Footprint::Near => (screen.everywhere(), f32::INFINITY),
                 Footprint::Cells(rect, w) => (rect, w),
             };
-            // Only the planes the object's box crosses can cut its clusters.
-            let (side, crossed) = view.frustum().classify(&cluster.bounds, object.crossed);
-            if side != Side::Outside {
-                out.push(Offer {
-                    cluster: i as u32,
-                    scale,
-                    crossed,
-                    // Proxies' normals point out of their boxes.
-                    away: if cluster.inner { -1.0 } else { object.away },
-                    rect,
-                    w,
-                    distance: cluster.bounds.distance_to(view.eye()),
-                    ..*object
-                });
-            }
+            out.push(Offer {
+                cluster: i as u32,
+                scale,
+                crossed,
+                // Proxies' normals point out of their boxes.
+                away: if cluster.inner { -1.0 } else { object.away },
+                rect,
+                w,
+                distance: cluster.bounds.distance_to(view.eye()),
+                ..*object
+            });
         }
     }
 
