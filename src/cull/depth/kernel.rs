@@ -47,6 +47,17 @@ impl Kernel {
         }
     }
 
+    /// Whether `raise` would change some cell: some `base + k·step` above
+    /// `cells[k]`, computed as `raise` computes it.
+    pub fn rises(self, cells: &[f32], base: f32, step: f32) -> bool {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `raise`.
+            Kernel::Avx2 => unsafe { avx2::rises(cells, base, step) },
+            _ => rises_scalar(cells, base, step),
+        }
+    }
+
     /// The cells of consecutive cell rows inside a convex polygon: for row
     /// `k` of `rows`, whose top pixel centre is at `y = y_top + k·cell`,
     /// `(⌈max(0, maxₗ pₗ + qₗ·(y + atₗ))⌉, ⌊min(last_col, minᵣ pᵣ +
@@ -115,6 +126,12 @@ pub(super) trait Raise {
     /// # Safety
     /// Only run on a CPU that has the kernel's instructions.
     unsafe fn raise(cells: &mut [f32], base: f32, step: f32);
+
+    /// `Kernel::rises`.
+    ///
+    /// # Safety
+    /// Only run on a CPU that has the kernel's instructions.
+    unsafe fn rises(cells: &[f32], base: f32, step: f32) -> bool;
 }
 
 /// [`Raise`] in plain Rust.
@@ -124,6 +141,11 @@ impl Raise for ScalarRaise {
     #[inline(always)]
     unsafe fn raise(cells: &mut [f32], base: f32, step: f32) {
         raise_scalar(cells, base, step);
+    }
+
+    #[inline(always)]
+    unsafe fn rises(cells: &[f32], base: f32, step: f32) -> bool {
+        rises_scalar(cells, base, step)
     }
 }
 
@@ -138,6 +160,12 @@ impl Raise for Avx2Raise {
         // SAFETY: the caller's.
         unsafe { avx2::raise(cells, base, step) }
     }
+
+    #[inline(always)]
+    unsafe fn rises(cells: &[f32], base: f32, step: f32) -> bool {
+        // SAFETY: the caller's.
+        unsafe { avx2::rises(cells, base, step) }
+    }
 }
 
 /// `raise`, one cell at a time.
@@ -148,6 +176,14 @@ fn raise_scalar(cells: &mut [f32], base: f32, step: f32) {
             *c = v;
         }
     }
+}
+
+/// `rises`, one cell at a time.
+fn rises_scalar(cells: &[f32], base: f32, step: f32) -> bool {
+    cells
+        .iter()
+        .enumerate()
+        .any(|(k, &c)| base + k as f32 * step > c)
 }
 
 /// `spans`, one row and one edge at a time.
@@ -229,6 +265,46 @@ mod avx2 {
                 _mm256_maskstore_ps(p, mask, _mm256_max_ps(v, old));
             }
         }
+    }
+
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn rises(cells: &[f32], base: f32, step: f32) -> bool {
+        let n = cells.len();
+        let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let (vb, vs) = (_mm256_set1_ps(base), _mm256_set1_ps(step));
+        let mut k = 0;
+        while k + 8 <= n {
+            // The values `raise` computes, compared as its `max` keeps
+            // them (ordered: a NaN rises nowhere).
+            let idx = _mm256_add_ps(_mm256_set1_ps(k as f32), lanes);
+            let v = _mm256_add_ps(vb, _mm256_mul_ps(idx, vs));
+            // SAFETY: k + 8 <= n, so the eight cells are in the slice.
+            let old = unsafe { _mm256_loadu_ps(cells.as_ptr().add(k)) };
+            if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(v, old)) != 0 {
+                return true;
+            }
+            k += 8;
+        }
+        if k < n {
+            let idx = _mm256_add_ps(_mm256_set1_ps(k as f32), lanes);
+            let v = _mm256_add_ps(vb, _mm256_mul_ps(idx, vs));
+            let rest = (n - k) as i32;
+            let mask = _mm256_cmpgt_epi32(
+                _mm256_set1_epi32(rest),
+                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+            );
+            // SAFETY: the mask leaves out every lane past the slice's end.
+            let old = unsafe { _mm256_maskload_ps(cells.as_ptr().add(k), mask) };
+            let above = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(v, old),
+                _mm256_castsi256_ps(mask),
+            );
+            return _mm256_movemask_ps(above) != 0;
+        }
+        false
     }
 
     /// # Safety
@@ -409,7 +485,11 @@ mod tests {
         ) {
             let fast = Kernel::detect();
             let (mut a, mut b) = (start.clone(), start.clone());
+            let rises = Kernel::Scalar.rises(&a, base, step);
+            prop_assert_eq!(fast.rises(&a, base, step), rises);
             Kernel::Scalar.raise(&mut a, base, step);
+            prop_assert_eq!(a != start, rises);
+            prop_assert!(!Kernel::Scalar.rises(&a, base, step) && !fast.rises(&a, base, step));
             fast.raise(&mut b, base, step);
             prop_assert_eq!(
                 a.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
