@@ -132,10 +132,16 @@ impl Screen {
         DVec3::new(d.dot(self.right), d.dot(self.up), d.dot(self.forward))
     }
 
+    /// Where view-space `v` (beyond the near plane) shows, to a few ulps:
+    /// one division, since only the rows a polygon may cover and a box
+    /// around them rest on it, and a pixel centre covered lies a pixel
+    /// slack (1e-4) inside both.
     fn screen_of(&self, v: DVec3) -> (f64, f64) {
+        let inv = 1.0 / v.z;
+        let (hw, hh) = (0.5 * self.width, 0.5 * self.height);
         (
-            (v.x / (v.z * self.tx) + 1.0) * 0.5 * self.width,
-            (1.0 - v.y / (v.z * self.ty)) * 0.5 * self.height,
+            v.x * inv * (hw / self.tx) + hw,
+            hh - v.y * inv * (hh / self.ty),
         )
     }
 
