@@ -212,9 +212,6 @@ impl DepthBuffer {
         base: impl Fn(usize, i32) -> f32,
         step: f32,
     ) {
-        // Tiles are marked stale once per row of tiles, over the columns
-        // its rows raised: (tile row, first column, last column).
-        let mut band: Option<(usize, usize, usize)> = None;
         for (k, &(lo, hi)) in spans.iter().enumerate() {
             if lo > hi {
                 continue;
@@ -226,25 +223,9 @@ impl DepthBuffer {
             unsafe { R::raise(&mut self.cells[at + x0..at + x1 + 1], base(k, lo), step) };
             let w = &mut self.written[y];
             *w = (w.0.min(x0 as u32), w.1.max(x1 as u32 + 1));
-            band = match band {
-                Some((ty, a, b)) if ty == y / TILE => Some((ty, a.min(x0), b.max(x1))),
-                Some(done) => {
-                    self.mark_band_stale(done);
-                    Some((y / TILE, x0, x1))
-                }
-                None => Some((y / TILE, x0, x1)),
-            };
+            let first = (y / TILE) * self.tiles_across;
+            self.mark_stale(first + x0 / TILE, first + x1 / TILE);
         }
-        if let Some(done) = band {
-            self.mark_band_stale(done);
-        }
-    }
-
-    /// Marks stale the tiles of tile row `ty` that hold columns `x0..=x1`.
-    #[inline(always)]
-    fn mark_band_stale(&mut self, (ty, x0, x1): (usize, usize, usize)) {
-        let first = ty * self.tiles_across;
-        self.mark_stale(first + x0 / TILE, first + x1 / TILE);
     }
 
     /// Marks tiles `a..=b` (by index) stale.
