@@ -36,8 +36,8 @@ pub struct DepthBuffer {
     tiles_across: usize,
     cells: Vec<f32>,
     /// Per row, the columns written since the last clear (`lo..hi`), so a
-    /// clear touches only those and a tile with an unwritten row is known
-    /// to hold a zero without reading it.
+    /// clear touches only those. (A tile's least value reads its cells
+    /// even where unwritten: checking the rows first cost more.)
     written: Vec<(u32, u32)>,
     /// Per tile, the least value of its cells where not stale, and at
     /// most it where stale: cells only rise until a clear zeroes both.
@@ -258,21 +258,12 @@ impl DepthBuffer {
     fn least(&self, tx: usize, ty: usize) -> f32 {
         let (r0, r1) = (ty * TILE, ((ty + 1) * TILE).min(self.rows));
         let (c0, c1) = (tx * TILE, ((tx + 1) * TILE).min(self.cols));
-        // A tile with a cell outside its rows' written columns holds a
-        // zero there: no need to read it.
-        let all_written = self.written[r0..r1]
-            .iter()
-            .all(|&(lo, hi)| lo as usize <= c0 && hi as usize >= c1);
-        if all_written {
-            self.kernel.least(
-                &self.cells[r0 * self.stride + c0..],
-                self.stride,
-                c1 - c0,
-                r1 - r0,
-            )
-        } else {
-            0.0
-        }
+        self.kernel.least(
+            &self.cells[r0 * self.stride + c0..],
+            self.stride,
+            c1 - c0,
+            r1 - r0,
+        )
     }
 
     /// Whether every cell of `rect` holds a value above `w` (an occluder
