@@ -110,14 +110,18 @@ impl DepthBuffer {
     /// `lo ≤ hi` (whole numbers within the row), from column `lo` to `hi`
     /// to `base(k, lo) + (x − lo)·step` where that is larger: a polygon's
     /// rows in one call, its loop compiled once per kernel with the
-    /// kernel's raise inside it rather than called per row.
+    /// kernel's raise inside it rather than called per row. Whether any
+    /// cell rose: the rows are first compared, without writing, up to the
+    /// first that would raise a cell, and only the rows from there are
+    /// raised, so that a polygon behind nearer ones (about half of those
+    /// drawn on a dense part, nearest first) costs a look, not its writes.
     pub fn raise_rows(
         &mut self,
         first_row: usize,
         spans: &[Span],
         base: impl Fn(usize, i32) -> f32,
         step: f32,
-    ) {
+    ) -> bool {
         match self.kernel {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Avx2` is only made on a CPU that has AVX2.
@@ -125,66 +129,6 @@ impl DepthBuffer {
             // SAFETY: plain Rust runs anywhere.
             _ => unsafe { self.raise_rows_with::<ScalarRaise>(first_row, spans, base, step) },
         }
-    }
-
-    /// The first `k` for which raising row `first_row + k` as
-    /// [`DepthBuffer::raise_rows`] would change a cell, if any does: rows
-    /// before it can be left out. A polygon drawn behind nearer ones
-    /// (about half of those drawn on a dense part, nearest first) costs
-    /// this look instead of its writes.
-    pub fn first_rising(
-        &self,
-        first_row: usize,
-        spans: &[Span],
-        base: impl Fn(usize, i32) -> f32,
-        step: f32,
-    ) -> Option<usize> {
-        match self.kernel {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: as in `raise_rows`.
-            Kernel::Avx2 => unsafe { self.first_rising_avx2(first_row, spans, base, step) },
-            // SAFETY: as in `raise_rows`.
-            _ => unsafe { self.first_rising_with::<ScalarRaise>(first_row, spans, base, step) },
-        }
-    }
-
-    /// # Safety
-    /// The CPU must have AVX2.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    unsafe fn first_rising_avx2(
-        &self,
-        first_row: usize,
-        spans: &[Span],
-        base: impl Fn(usize, i32) -> f32,
-        step: f32,
-    ) -> Option<usize> {
-        // SAFETY: the caller's.
-        unsafe { self.first_rising_with::<super::kernel::Avx2Raise>(first_row, spans, base, step) }
-    }
-
-    /// # Safety
-    /// The CPU must have `R`'s instructions.
-    #[inline(always)]
-    unsafe fn first_rising_with<R: Raise>(
-        &self,
-        first_row: usize,
-        spans: &[Span],
-        base: impl Fn(usize, i32) -> f32,
-        step: f32,
-    ) -> Option<usize> {
-        spans.iter().enumerate().position(|(k, &(lo, hi))| {
-            let at = (first_row + k) * self.stride;
-            // SAFETY: the caller's.
-            lo <= hi
-                && unsafe {
-                    R::rises(
-                        &self.cells[at + lo as usize..=at + hi as usize],
-                        base(k, lo),
-                        step,
-                    )
-                }
-        })
     }
 
     /// # Safety
@@ -197,7 +141,7 @@ impl DepthBuffer {
         spans: &[Span],
         base: impl Fn(usize, i32) -> f32,
         step: f32,
-    ) {
+    ) -> bool {
         // SAFETY: the caller's.
         unsafe { self.raise_rows_with::<super::kernel::Avx2Raise>(first_row, spans, base, step) }
     }
@@ -211,8 +155,19 @@ impl DepthBuffer {
         spans: &[Span],
         base: impl Fn(usize, i32) -> f32,
         step: f32,
-    ) {
-        for (k, &(lo, hi)) in spans.iter().enumerate() {
+    ) -> bool {
+        let rises = spans.iter().enumerate().position(|(k, &(lo, hi))| {
+            let at = (first_row + k) * self.stride;
+            lo <= hi && {
+                let cells = &self.cells[at + lo as usize..=at + hi as usize];
+                // SAFETY: the caller's.
+                unsafe { R::rises(cells, base(k, lo), step) }
+            }
+        });
+        let Some(from) = rises else {
+            return false;
+        };
+        for (k, &(lo, hi)) in spans.iter().enumerate().skip(from) {
             if lo > hi {
                 continue;
             }
@@ -226,6 +181,7 @@ impl DepthBuffer {
             let first = (y / TILE) * self.tiles_across;
             self.mark_stale(first + x0 / TILE, first + x1 / TILE);
         }
+        true
     }
 
     /// Marks tiles `a..=b` (by index) stale.
@@ -393,6 +349,35 @@ mod tests {
             // A clear forgets it.
             b.reset(20, 11);
             assert!(!b.hides(rect(5, 5, 5, 5), 0.0001));
+        }
+    }
+
+    #[test]
+    fn rows_behind_what_is_drawn_are_left_as_they_are() {
+        for kernel in [Kernel::Scalar, Kernel::detect()] {
+            let mut b = DepthBuffer::new(kernel);
+            b.reset(30, 12);
+            for y in 0..12 {
+                b.raise_span(y, 0, 29, 1.0, 0.0);
+            }
+            let before = b.cells.clone();
+            // Behind everywhere, ties included: nothing rises, nothing is
+            // written or marked.
+            let spans = [(1, 0), (2, 10), (0, 29), (5, 5)];
+            assert!(!b.raise_rows(3, &spans, |_, _| 1.0, -0.01));
+            assert_eq!(b.cells, before);
+            // In front from column 17 of row 5 on (0.5 + 17·0.03 > 1):
+            // only those cells change.
+            assert!(b.raise_rows(3, &spans, |_, lo| 0.5 + lo as f32 * 0.03, 0.03));
+            let at = |x: usize, y: usize| b.cells[y * b.stride + x];
+            for y in 0..12 {
+                for x in 0..30 {
+                    let rose = y == 5 && x >= 17;
+                    assert_eq!(at(x, y) > 1.0, rose, "cell ({x}, {y})");
+                }
+            }
+            assert!(!b.hides(rect(29, 5, 29, 5), at(29, 5)));
+            assert!(b.hides(rect(29, 5, 29, 5), 1.0), "its tile was renewed");
         }
     }
 

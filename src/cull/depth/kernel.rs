@@ -226,20 +226,38 @@ fn least_scalar(cells: &[f32], stride: usize, width: usize, rows: usize) -> f32 
 mod avx2 {
     use std::arch::x86_64::*;
 
+    /// `base + (k + lane)·step` in each of eight lanes: the values `raise`
+    /// writes and `rises` compares, made in one place so that they are
+    /// the same bits. `k + lane` is an integer below 2^24: exact in f32,
+    /// as the scalar loops' `k as f32` is.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn values(base: __m256, step: __m256, k: usize) -> __m256 {
+        let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let idx = _mm256_add_ps(_mm256_set1_ps(k as f32), lanes);
+        _mm256_add_ps(base, _mm256_mul_ps(idx, step))
+    }
+
+    /// The lanes below `rest` (under eight), for a slice's last cells.
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    fn first_lanes(rest: usize) -> __m256i {
+        _mm256_cmpgt_epi32(
+            _mm256_set1_epi32(rest as i32),
+            _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+        )
+    }
+
     /// # Safety
     /// The CPU must have AVX2.
     #[inline]
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn raise(cells: &mut [f32], base: f32, step: f32) {
         let n = cells.len();
-        let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
         let (vb, vs) = (_mm256_set1_ps(base), _mm256_set1_ps(step));
         let mut k = 0;
         while k + 8 <= n {
-            // `k + lane` is an integer below 2^24: exact in f32, as the
-            // scalar loop's `k as f32` is.
-            let idx = _mm256_add_ps(_mm256_set1_ps(k as f32), lanes);
-            let v = _mm256_add_ps(vb, _mm256_mul_ps(idx, vs));
+            let v = values(vb, vs, k);
             // SAFETY: k + 8 <= n, so the eight cells are in the slice.
             unsafe {
                 let p = cells.as_mut_ptr().add(k);
@@ -251,13 +269,7 @@ mod avx2 {
         }
         if k < n {
             // The last cells through a mask: the same operations on them.
-            let idx = _mm256_add_ps(_mm256_set1_ps(k as f32), lanes);
-            let v = _mm256_add_ps(vb, _mm256_mul_ps(idx, vs));
-            let rest = (n - k) as i32;
-            let mask = _mm256_cmpgt_epi32(
-                _mm256_set1_epi32(rest),
-                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-            );
+            let (v, mask) = (values(vb, vs, k), first_lanes(n - k));
             // SAFETY: the mask leaves out every lane past the slice's end.
             unsafe {
                 let p = cells.as_mut_ptr().add(k);
@@ -273,36 +285,25 @@ mod avx2 {
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn rises(cells: &[f32], base: f32, step: f32) -> bool {
         let n = cells.len();
-        let lanes = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
         let (vb, vs) = (_mm256_set1_ps(base), _mm256_set1_ps(step));
         let mut k = 0;
+        // Compared as `raise`'s `max` keeps them (ordered: a NaN rises
+        // nowhere).
         while k + 8 <= n {
-            // The values `raise` computes, compared as its `max` keeps
-            // them (ordered: a NaN rises nowhere).
-            let idx = _mm256_add_ps(_mm256_set1_ps(k as f32), lanes);
-            let v = _mm256_add_ps(vb, _mm256_mul_ps(idx, vs));
             // SAFETY: k + 8 <= n, so the eight cells are in the slice.
             let old = unsafe { _mm256_loadu_ps(cells.as_ptr().add(k)) };
-            if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(v, old)) != 0 {
+            let above = _mm256_cmp_ps::<_CMP_GT_OQ>(values(vb, vs, k), old);
+            if _mm256_movemask_ps(above) != 0 {
                 return true;
             }
             k += 8;
         }
         if k < n {
-            let idx = _mm256_add_ps(_mm256_set1_ps(k as f32), lanes);
-            let v = _mm256_add_ps(vb, _mm256_mul_ps(idx, vs));
-            let rest = (n - k) as i32;
-            let mask = _mm256_cmpgt_epi32(
-                _mm256_set1_epi32(rest),
-                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-            );
+            let mask = first_lanes(n - k);
             // SAFETY: the mask leaves out every lane past the slice's end.
             let old = unsafe { _mm256_maskload_ps(cells.as_ptr().add(k), mask) };
-            let above = _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GT_OQ>(v, old),
-                _mm256_castsi256_ps(mask),
-            );
-            return _mm256_movemask_ps(above) != 0;
+            let above = _mm256_cmp_ps::<_CMP_GT_OQ>(values(vb, vs, k), old);
+            return _mm256_movemask_ps(_mm256_and_ps(above, _mm256_castsi256_ps(mask))) != 0;
         }
         false
     }

@@ -349,16 +349,8 @@ impl Screen {
             let y = lesser(y_far + (k as i64 as f64) * c, last_centre);
             (wa * (lo as f64 * c + x_far) + wb * y + wc - w_round - f32_margin) as f32
         };
-        let Some(from) = buffer.first_rising(row_first, spans, base, step32) else {
-            return false; // hidden wherever it would write
-        };
-        buffer.raise_rows(
-            row_first + from,
-            &spans[from..],
-            move |k, lo| base(k + from, lo),
-            step32,
-        );
-        true
+        // False: hidden wherever it would write.
+        buffer.raise_rows(row_first, spans, base, step32)
     }
 
     /// `corners` moved to view space and clipped to beyond the near plane,
