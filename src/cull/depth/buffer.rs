@@ -361,8 +361,8 @@ mod tests {
                 b.raise_span(y, 0, 29, 1.0, 0.0);
             }
             let before = b.cells.clone();
-            // Behind everywhere, ties included: nothing rises, nothing is
-            // written or marked.
+            // Behind everywhere, ties included: nothing rises, no cell is
+            // written.
             let spans = [(1, 0), (2, 10), (0, 29), (5, 5)];
             assert!(!b.raise_rows(3, &spans, |_, _| 1.0, -0.01));
             assert_eq!(b.cells, before);
