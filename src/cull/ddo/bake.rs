@@ -20,7 +20,7 @@ use crate::scene::{BakeCache, Scene};
 /// must change this text, so old files are rebuilt, never misread.
 fn params_text(params: OctreeParams) -> String {
     format!(
-        "ddo v2 leaf={} depth={} regions=64>32 angle={} clip={}",
+        "ddo v3 leaf={} depth={} regions=64>32 angle={} clip={}",
         params.leaf_triangles,
         params.max_depth,
         super::regions::MAX_ANGLE_DEG,
@@ -112,12 +112,18 @@ pub fn bake(scene: &Scene, params: OctreeParams) -> Result<Octree, String> {
         )
         .collect();
     bar.finish_and_clear();
-    let tree = skeleton.finish(masks);
+    let solids_started = Instant::now();
+    let solids = super::solid::find(&surfaces, &owner[..opaque.len()], validator.extent);
+    let solids_ms = solids_started.elapsed().as_millis() as u64;
+    let tree = skeleton.finish(masks, solids);
     tracing::info!(
         scene = %scene.id,
         nodes = tree.nodes().len(),
         valid_faces_32 = tree.valid_faces(Regions::R32),
         valid_faces_64 = tree.valid_faces(Regions::R64),
+        solids = tree.solids().len(),
+        solid_rects = tree.solids().iter().map(|s| s.rects.len()).sum::<usize>(),
+        solids_ms,
         ms = started.elapsed().as_millis() as u64,
         "baked directional discretized occluders"
     );

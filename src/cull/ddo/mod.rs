@@ -33,6 +33,19 @@
 //! between neighbouring faces, of one plane or of several, that the
 //! coordinate-plane maps below leave open; docs/ddo.md measures both.
 //!
+//! **Solid occluders** ([`solid`], screen map only). The bake also finds
+//! rectangles proved to lie inside closed opaque surfaces, valid from any
+//! eye outside the surface's box; they are drawn like faces, at their own
+//! depth, only when the whole box lies beyond the near plane (so the
+//! triangle that hides a rectangle is not clipped away). Those of large
+//! surfaces (a body's skin) are drawn before anything is tested; those of
+//! one object's small closed part once that object is found visible: one
+//! hidden lies behind what is drawn already and would add nothing. With
+//! `traversal=objects` the octree is not walked: the objects in the
+//! frustum, nearest box first, are tested by their boxes against the
+//! solids drawn so far. The depth test needs no order, so the order only
+//! decides how much is hidden, never whether a hidden box is truly hidden.
+//!
 //! **The maps' planes** (§4.2, `map=exact|grid`). The paper projects onto
 //! the coordinate plane most facing the view (`planes=best`): points are
 //! projected from the eye onto `z = 1`, `z` being the distance along that
@@ -66,6 +79,7 @@ mod bake;
 mod map;
 mod octree;
 mod regions;
+mod solid;
 mod validity;
 
 use std::cmp::Ordering;
@@ -77,6 +91,7 @@ pub use bake::bake;
 pub use map::{CellGrid, OcclusionMap, Rect, RectUnion};
 pub use octree::{Node, Octree, OctreeParams};
 pub use regions::Regions;
+pub use solid::{Solid, SolidRect};
 pub use validity::CLIP;
 
 use super::{
@@ -109,7 +124,13 @@ const CELLS: Ranged<usize> = Ranged {
 /// (the paper's), taking every face.
 const PLANES: &str = "planes";
 
-const OPTIONS: [&str; 5] = [REGIONS, MAP, CELLS.key, PLANES, SPLITS.key];
+/// `traversal=octree|objects`: the paper's front-to-back octree walk, or
+/// (with the screen map) the objects in the frustum nearest first, each
+/// tested by its box against the solid occluders ([`solid`]) of the
+/// objects found visible before it; the octree faces are not drawn.
+const TRAVERSAL: &str = "traversal";
+
+const OPTIONS: [&str; 6] = [REGIONS, MAP, CELLS.key, PLANES, SPLITS.key, TRAVERSAL];
 
 /// Projected depths below this share of the scene's size (plus the eye's
 /// distance from its origin) are not projected: far above the rounding of
@@ -146,7 +167,13 @@ pub const ENTRY: MethodEntry = MethodEntry {
     name: "ddo",
     purpose: "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
     options: &OPTIONS,
-    checked_with: &["regions=32", "map=exact", "map=grid:cells=16", "map=exact:splits=2"],
+    checked_with: &[
+        "regions=32",
+        "map=exact",
+        "map=grid:cells=16",
+        "map=exact:splits=2",
+        "traversal=objects",
+    ],
     regions: Some("its octree faces are proven occluders from direction regions of single eyes, not shrunk for a ball of eyes, and its occlusion map is drawn on one camera's plane"),
     build,
 };
@@ -176,6 +203,14 @@ pub struct DdoCulling {
     /// Per node, the `f32` box that holds it (rounding outwards costs
     /// more than reading it).
     bounds: Vec<Aabb>,
+    /// Solids drawn before anything is tested: the large ones and those
+    /// of several objects (indices into the octree's solids).
+    first_solids: Vec<u32>,
+    /// Per object, its own small solids: drawn once it is found visible
+    /// (one hidden hides nothing that is not hidden already).
+    object_solids: Vec<Vec<u32>>,
+    /// How far a solid's rectangle may stray from its plane by rounding.
+    margin: f64,
 }
 
 impl DdoCulling {
@@ -185,11 +220,81 @@ impl DdoCulling {
             root.min.abs().max(root.max().abs()).length()
         });
         let bounds = tree.nodes().iter().map(Node::bounds).collect();
+        let mut first_solids = Vec::new();
+        let mut object_solids = vec![Vec::new(); scene.objects().len()];
+        for (k, s) in tree.solids().iter().enumerate() {
+            match s.object {
+                Some(o) if !s.large => object_solids[o as usize].push(k as u32),
+                _ => first_solids.push(k as u32),
+            }
+        }
+        let margin = validity::margin(scene.bounds().extent().max_element() as f64);
         DdoCulling {
             scene,
             tree,
             radius,
             bounds,
+            first_solids,
+            object_solids,
+            margin,
+        }
+    }
+
+    /// Draws the rectangles of solid `k` when its whole box lies beyond the
+    /// near plane ([`solid`]'s doc says why they hide from such an eye).
+    fn draw_solid(&self, k: u32, view: &View, screen: &Screen, canvas: &mut Canvas, floor: f64) {
+        let s = &self.tree.solids()[k as usize];
+        let (eye, forward) = (view.eye(), view.basis().forward);
+        // The box's nearest depth: at the corner most against the view.
+        let nearest: f64 = (0..3)
+            .map(|i| (if forward[i] >= 0.0 { s.lo[i] } else { s.hi[i] } - eye[i]) * forward[i])
+            .sum();
+        let needed = view.camera().near * (1.0 + NEAR_SLACK) + floor;
+        if nearest.partial_cmp(&needed).is_none_or(Ordering::is_lt) {
+            return;
+        }
+        for r in &s.rects {
+            let plane = Plane {
+                normal: r.normal,
+                d: r.d,
+            };
+            screen.draw(&r.corners, &plane, self.margin, &mut canvas.buffer, &mut canvas.scratch);
+        }
+    }
+
+    /// `traversal=objects`: each object in the frustum, nearest first,
+    /// tested by its box; one found visible has its own solids drawn.
+    fn cull_objects(&self, view: &View, screen: &Screen, floor: f64, state: &mut DdoState, out: &mut VisibleSet) -> CullCounters {
+        let (eye, forward) = (view.eye(), view.basis().forward);
+        let frustum = view.frustum();
+        state.order.clear();
+        for (id, o) in self.scene.objects().iter().enumerate() {
+            if frustum.intersects(&o.bounds) {
+                let (lo, hi) = (o.bounds.min.as_dvec3(), o.bounds.max.as_dvec3());
+                let nearest: f64 = (0..3)
+                    .map(|i| (if forward[i] >= 0.0 { lo[i] } else { hi[i] } - eye[i]) * forward[i])
+                    .sum();
+                state.order.push((nearest, id as u32));
+            }
+        }
+        state.order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let canvas = state.canvas.as_mut().expect("objects are tested on the screen map");
+        for &(_, id) in &state.order {
+            let hidden = match screen.footprint(&self.scene.objects()[id as usize].bounds) {
+                Footprint::Near => false,
+                Footprint::Nothing => true,
+                Footprint::Cells(rect, w) => canvas.buffer.hides(rect, w),
+            };
+            if !hidden {
+                out.push(id);
+                for &k in &self.object_solids[id as usize] {
+                    self.draw_solid(k, view, screen, canvas, floor);
+                }
+            }
+        }
+        CullCounters {
+            nodes_tested: state.order.len() as u64,
+            in_frustum: InFrustum::Unknown,
         }
     }
 
@@ -217,6 +322,11 @@ pub struct DdoState {
     /// With `map=screen` (the default): a depth buffer at the viewport's
     /// pixel centres, in place of `maps`.
     canvas: Option<Canvas>,
+    /// `traversal=objects`.
+    by_object: bool,
+    /// With `traversal=objects`: the objects in the frustum and their
+    /// nearest depths, sorted each frame.
+    order: Vec<(f64, u32)>,
 }
 
 /// A depth buffer at pixel centres and the buffers its drawing reuses.
@@ -243,7 +353,16 @@ impl CullMethod for DdoCulling {
         let cells = r.ranged(&CELLS)?;
         let form = r.choice(MAP, &["screen", "exact", "grid"])?;
         let grid = form == "grid";
+        let by_object = r.choice(TRAVERSAL, &["octree", "objects"])? == "objects";
         r.finish()?;
+        if by_object && form != "screen" {
+            return Err(MethodError::InvalidOption {
+                method: "ddo".into(),
+                option: TRAVERSAL.into(),
+                value: "objects".into(),
+                expected: "octree with map=exact or map=grid: objects are tested on the screen map only".into(),
+            });
+        }
         // The plane maps' own options say nothing to the screen map.
         if form == "screen"
             && let Some((key, value)) = options
@@ -277,6 +396,8 @@ impl CullMethod for DdoCulling {
             frame: 0,
             pending: Vec::new(),
             canvas,
+            by_object,
+            order: Vec::new(),
         })
     }
 
@@ -290,6 +411,7 @@ impl CullMethod for DdoCulling {
             + state.seen.capacity() * 4
             + state.pending.capacity() * std::mem::size_of::<(usize, Rect)>()
             + state.canvas.as_ref().map_or(0, |c| c.buffer.heap_bytes())
+            + state.order.capacity() * std::mem::size_of::<(f64, u32)>()
     }
 
     fn cull(
@@ -316,10 +438,17 @@ impl CullMethod for DdoCulling {
             let screen = Screen::new(view, 1, self.radius);
             let (cols, rows) = screen.cells();
             canvas.buffer.reset(cols, rows);
+            for &k in &self.first_solids {
+                self.draw_solid(k, view, &screen, canvas, projection.floor);
+            }
             screen
         });
+        if let (Some(screen), true) = (screen, state.by_object) {
+            return Ok(self.cull_objects(view, &screen, projection.floor, state, out));
+        }
         let mut walk = Walk {
             screen,
+            culling: self,
             tree: &self.tree,
             bounds: &self.bounds,
             scene: &self.scene,
@@ -539,6 +668,7 @@ impl Projection {
 struct Walk<'a> {
     /// With `map=screen`, the view against the canvas.
     screen: Option<Screen>,
+    culling: &'a DdoCulling,
     tree: &'a Octree,
     /// Per node, its `f32` box.
     bounds: &'a [Aabb],
@@ -594,6 +724,11 @@ impl Walk<'_> {
                 if visible {
                     self.state.seen[id as usize] = self.state.frame;
                     self.out.push(id);
+                    if let (Some(screen), Some(canvas)) = (&self.screen, &mut self.state.canvas) {
+                        for &k in &self.culling.object_solids[id as usize] {
+                            self.culling.draw_solid(k, self.view, screen, canvas, self.projection.floor);
+                        }
+                    }
                 }
             }
         } else {

@@ -11,6 +11,7 @@
 use glam::DVec3;
 
 use super::regions::Regions;
+use super::solid::{Solid, SolidRect};
 use crate::geom::Aabb;
 use crate::scene::Scene;
 
@@ -105,6 +106,8 @@ pub struct Octree {
     pub(super) masks32: Vec<[u32; 6]>,
     /// Per node, per face, the 64-region mask.
     pub(super) masks64: Vec<[u64; 6]>,
+    /// Rectangles inside the scene's large closed surfaces ([`super::solid`]).
+    pub(super) solids: Vec<Solid>,
 }
 
 /// An octree being built: the nodes and, per leaf, its triangles (what the
@@ -286,13 +289,14 @@ impl Skeleton {
     }
 
     /// The finished octree with the masks found for each node.
-    pub fn finish(self, masks: Vec<([u32; 6], [u64; 6])>) -> Octree {
+    pub fn finish(self, masks: Vec<([u32; 6], [u64; 6])>, solids: Vec<Solid>) -> Octree {
         let (masks32, masks64) = masks.into_iter().unzip();
         Octree {
             nodes: self.nodes,
             objects: self.objects,
             masks32,
             masks64,
+            solids,
         }
     }
 }
@@ -347,7 +351,27 @@ impl Octree {
         for o in &self.objects {
             out.extend_from_slice(&o.to_le_bytes());
         }
+        out.extend_from_slice(&(self.solids.len() as u32).to_le_bytes());
+        for solid in &self.solids {
+            for v in solid.lo.to_array().into_iter().chain(solid.hi.to_array()) {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+            out.extend_from_slice(&solid.object.unwrap_or(u32::MAX).to_le_bytes());
+            out.push(u8::from(solid.large));
+            out.extend_from_slice(&(solid.rects.len() as u32).to_le_bytes());
+            for r in &solid.rects {
+                let values = r.corners.iter().chain([&r.normal]).flat_map(|p| p.to_array());
+                for v in values.chain([r.d]) {
+                    out.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
         out
+    }
+
+    /// The solid occluders ([`super::solid`]).
+    pub fn solids(&self) -> &[Solid] {
+        &self.solids
     }
 
     /// The octree of a payload, checked against `scene` (every object id
@@ -356,8 +380,7 @@ impl Octree {
         let mut r = Reader { bytes, at: 0 };
         let nodes = r.u32()? as usize;
         let objects = r.u32()? as usize;
-        const NODE_BYTES: usize = 8 * 4 + 4 * 3 + 4 * 6 + 8 * 6;
-        if nodes == 0 || bytes.len() != 8 + nodes * NODE_BYTES + objects * 4 {
+        if nodes == 0 || bytes.len() < 8 + nodes * NODE_BYTES + objects * 4 + 4 {
             return Err("the ddo payload's length disagrees with its counts".into());
         }
         let mut tree = Octree {
@@ -365,6 +388,7 @@ impl Octree {
             objects: Vec::with_capacity(objects),
             masks32: Vec::with_capacity(nodes),
             masks64: Vec::with_capacity(nodes),
+            solids: Vec::new(),
         };
         for _ in 0..nodes {
             let min = DVec3::new(r.f64()?, r.f64()?, r.f64()?);
@@ -400,9 +424,53 @@ impl Octree {
             }
             tree.objects.push(id);
         }
+        let solids = r.u32()?;
+        for _ in 0..solids {
+            let lo = DVec3::new(r.f64()?, r.f64()?, r.f64()?);
+            let hi = DVec3::new(r.f64()?, r.f64()?, r.f64()?);
+            let object = Some(r.u32()?).filter(|&o| o != u32::MAX);
+            if object.is_some_and(|o| o as usize >= scene.objects().len()) {
+                return Err(format!("ddo solid {} names an object the scene has not", tree.solids.len()));
+            }
+            let large = match r.take::<1>()? {
+                [0] => false,
+                [1] => true,
+                _ => return Err(format!("ddo solid {} is malformed", tree.solids.len())),
+            };
+            let count = r.u32()? as usize;
+            // Each rectangle takes 128 bytes: a count the rest cannot hold
+            // is refused before anything is reserved for it.
+            if count > (bytes.len() - r.at) / 128 || !(lo.is_finite() && hi.is_finite() && lo.cmple(hi).all()) {
+                return Err(format!("ddo solid {} is malformed", tree.solids.len()));
+            }
+            let mut rects = Vec::with_capacity(count);
+            for _ in 0..count {
+                let mut point = || -> Result<DVec3, String> { Ok(DVec3::new(r.f64()?, r.f64()?, r.f64()?)) };
+                let corners = [point()?, point()?, point()?, point()?];
+                let normal = point()?;
+                let d = r.f64()?;
+                if !(corners.iter().all(|c| c.is_finite()) && normal.is_finite() && d.is_finite()) {
+                    return Err(format!("a rectangle of ddo solid {} is malformed", tree.solids.len()));
+                }
+                rects.push(SolidRect { corners, normal, d });
+            }
+            tree.solids.push(Solid {
+                lo,
+                hi,
+                object,
+                large,
+                rects,
+            });
+        }
+        if r.at != bytes.len() {
+            return Err("the ddo payload's length disagrees with its counts".into());
+        }
         Ok(tree)
     }
 }
+
+/// Bytes of one node in the payload.
+const NODE_BYTES: usize = 8 * 4 + 4 * 3 + 4 * 6 + 8 * 6;
 
 /// A segment `p q` set up for many box tests (the bake tests each of its
 /// segments against hundreds of boxes): the reciprocal of its direction is
@@ -525,11 +593,22 @@ mod tests {
         let bytes = tree.encode();
         assert_eq!(Octree::decode(&bytes, &scene), Ok(tree.clone()));
         assert!(Octree::decode(&bytes[..bytes.len() - 1], &scene).is_err(), "short");
+        // Both boxes are closed: their insides hold solid occluders.
+        assert!(!tree.solids().is_empty());
         // An object id the scene has not.
         let mut bad = bytes.clone();
-        let last = bad.len() - 4;
-        bad[last..].copy_from_slice(&99u32.to_le_bytes());
+        let last = 8 + tree.nodes.len() * NODE_BYTES + tree.objects.len() * 4 - 4;
+        bad[last..last + 4].copy_from_slice(&99u32.to_le_bytes());
         assert!(Octree::decode(&bad, &scene).unwrap_err().contains("object 99"));
+        // A rectangle's corner that is not a number.
+        let mut bad = bytes.clone();
+        let corner = bytes.len() - 16 * 8;
+        bad[corner..corner + 8].copy_from_slice(&f64::NAN.to_le_bytes());
+        assert!(Octree::decode(&bad, &scene).unwrap_err().contains("rectangle"));
+        // Bytes left over.
+        let mut long = bytes.clone();
+        long.push(0);
+        assert!(Octree::decode(&long, &scene).is_err(), "long");
         // A child index past the nodes.
         let mut bad = bytes.clone();
         bad[8 + 32..8 + 36].copy_from_slice(&u32::MAX.to_le_bytes());

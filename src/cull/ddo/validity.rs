@@ -179,6 +179,32 @@ impl Surfaces {
     }
 }
 
+impl Surfaces {
+    /// Per connected set, whether it is closed: an even number of its
+    /// triangles on every edge (joined as in [`Surfaces::new`]), so that
+    /// whether a point lies inside it (an odd number of crossings on a
+    /// ray to far away) does not depend on the ray.
+    pub fn closed_components(&self) -> Vec<bool> {
+        let mut closed = vec![true; self.component_boxes.len()];
+        for (t, es) in self.edges.iter().enumerate() {
+            if es.iter().any(|&e| self.on_edges.on(e).len() % 2 == 1) {
+                closed[self.component[t] as usize] = false;
+            }
+        }
+        closed
+    }
+
+    /// Each triangle's connected set.
+    pub fn component_of(&self) -> &[u32] {
+        &self.component
+    }
+
+    /// Each connected set's box.
+    pub fn component_boxes(&self) -> &[[DVec3; 2]] {
+        &self.component_boxes
+    }
+}
+
 /// The triangles on each edge, edge after edge in one list.
 struct EdgeTriangles {
     /// Per edge, where its triangles start in `triangles`; one more entry
@@ -417,11 +443,19 @@ fn triangle_meets_box(q: &[DVec3; 3], lo: DVec3, hi: DVec3) -> bool {
     if tlo.cmpgt(hi).any() || thi.cmplt(lo).any() {
         return false;
     }
-    // Clipped by six planes a triangle keeps at most nine corners; should
-    // rounding ever make more, the triangle is taken to meet the box
-    // (the answer that never makes a face valid).
-    const MAX: usize = 16;
-    let (mut poly, mut len) = ([DVec3::ZERO; MAX], 3);
+    clip_to_box(q, lo, hi).is_none_or(|(_, len)| len > 0)
+}
+
+/// Most corners a clipped triangle keeps here: six planes leave at most
+/// nine.
+const CLIPPED: usize = 16;
+
+/// Triangle `q` clipped to the box `[lo, hi]` (a bound may be infinite):
+/// its corners and how many; `None` when rounding would make more than
+/// [`CLIPPED`], which callers take as "meets" (the answer that never
+/// proves an occluder).
+pub(super) fn clip_to_box(q: &[DVec3; 3], lo: DVec3, hi: DVec3) -> Option<([DVec3; CLIPPED], usize)> {
+    let (mut poly, mut len) = ([DVec3::ZERO; CLIPPED], 3);
     poly[..3].copy_from_slice(q);
     for axis in 0..3 {
         for (bound, keep_above) in [(lo[axis], true), (hi[axis], false)] {
@@ -432,10 +466,10 @@ fn triangle_meets_box(q: &[DVec3; 3], lo: DVec3, hi: DVec3) -> bool {
                     p[axis] <= bound
                 }
             };
-            let (mut next, mut kept) = ([DVec3::ZERO; MAX], 0);
+            let (mut next, mut kept) = ([DVec3::ZERO; CLIPPED], 0);
             for i in 0..len {
-                if kept + 2 > MAX {
-                    return true;
+                if kept + 2 > CLIPPED {
+                    return None;
                 }
                 let (a, b) = (poly[i], poly[(i + 1) % len]);
                 if inside(&a) {
@@ -452,11 +486,11 @@ fn triangle_meets_box(q: &[DVec3; 3], lo: DVec3, hi: DVec3) -> bool {
             }
             (poly, len) = (next, kept);
             if len == 0 {
-                return false;
+                return Some((poly, 0));
             }
         }
     }
-    true
+    Some((poly, len))
 }
 
 /// How a segment meets a triangle, decided exactly.

@@ -1,0 +1,649 @@
+//! Solid occluders: rectangles that lie inside a closed opaque surface,
+//! found at bake time beside the DDO masks. They are the "merged
+//! occluders" Bernardini et al. §3 obtain from a node's faces where a
+//! model is solid, taken from a whole closed surface instead of one node:
+//! a car body's shell holds rectangles metres long where its valid
+//! octree faces are centimetres, so a frame draws tens of polygons where
+//! it drew thousands of faces (docs/ddo.md measures both).
+//!
+//! **What is proved.** Let `S` be a connected set of the scene's opaque
+//! static triangles with an even number of its triangles on every edge
+//! (edges joined where two corners are exactly equal:
+//! [`Surfaces::closed_components`]). Then the parity of a point (how many
+//! of `S`'s triangles a ray from it to far away crosses) does not depend
+//! on the ray, and it can change along a path only where the path meets a
+//! triangle of `S`. A rectangle `R` is kept when (1) no triangle of `S`
+//! has a point in any of `R`'s closed cells (each triangle's part within
+//! a margin of the plane is bounded by a box grown by the margin, and every
+//! cell that box touches is struck off), (2) `R`'s cells are joined by
+//! shared sides to a cell whose centre has odd parity, counted exactly
+//! ([`crossing`], Shewchuk's predicates; a degenerate crossing makes the
+//! count move to another cell, and after a few, give up). So every point of
+//! `R` has odd parity. An eye outside `S`'s box has even parity, so the
+//! segment from it to any point of `R` meets a triangle of `S` before `R`:
+//! whatever lies behind `R` from that eye is hidden by `S`, which is
+//! opaque and static. The run time uses `R` only when the whole box of
+//! `S` lies beyond the view's near plane, so that the hiding triangle is
+//! one the near plane does not clip away; that also puts the eye outside
+//! the box.
+//!
+//! **Why rounding cannot break it.** Corners are the scene's `f32` values,
+//! held exactly in `f64`; a triangle's part near the plane and its box are
+//! computed to ~10⁻¹⁶ of the scene's size, and the box is grown by
+//! [`margin`] (10⁻⁹ of it), so a cell whose computed bounds the grown box
+//! misses is clear of the triangle by far more than any rounding. The
+//! rectangle drawn has exactly the computed bounds of its cells.
+
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+
+use super::validity::{Crossing, Surfaces, clip_to_box, crossing, margin};
+
+/// Cells along the longest side of a closed set's box.
+const GRID: usize = 256;
+
+/// Cells along the longest side of a small closed set's box.
+const SMALL_GRID: usize = 32;
+
+/// Rectangles kept of a large closed set, largest first: on the CAD body
+/// 150 cover its shell as well as 400 less a few objects' worth
+/// (docs/ddo.md).
+const LARGE_KEEP: usize = 150;
+
+/// Rectangles kept of a small closed set (a part): its largest cross
+/// sections, which are most of what it hides of the parts behind it.
+const SMALL_KEEP: usize = 3;
+
+/// Rectangles on near parallel planes of one frame within this many
+/// cells of each other, of which the smaller lies over the larger by at
+/// least [`OVERLAP`] of its area, are one: the smaller is dropped.
+const REACH: f64 = 3.0;
+
+/// See [`REACH`].
+const OVERLAP: f64 = 0.5;
+
+/// A rectangle of fewer cells than this is not kept: it hides less than
+/// drawing it costs.
+const MIN_CELLS: usize = 16;
+
+/// Rectangles taken from one plane's cells at most.
+const PER_PLANE: usize = 8;
+
+/// Closed sets whose box's longest side is at least this share of the
+/// scene's are large: bodies and shells, searched in finer cells, whose
+/// rectangles are drawn before anything is tested. The others (parts)
+/// are drawn when their object is found visible.
+const LARGE_SHARE: f64 = 0.25;
+
+/// Cells whose centre is tried for a region's parity before it is given
+/// up on (a crossing through an edge or corner of a triangle is retried
+/// from another cell).
+const PARITY_TRIES: usize = 4;
+
+/// Buckets along each side of the grid that finds the triangles above a
+/// point.
+const BUCKETS: usize = 64;
+
+/// A rectangle inside a closed set, as drawn: its corners in order
+/// around it and its plane (`normal · p + d = 0`, to within rounding).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolidRect {
+    pub corners: [DVec3; 4],
+    pub normal: DVec3,
+    pub d: f64,
+}
+
+impl SolidRect {
+    /// Its area.
+    pub fn area(&self) -> f64 {
+        (self.corners[1] - self.corners[0]).length() * (self.corners[3] - self.corners[0]).length()
+    }
+}
+
+/// An orthonormal frame: `n` across the planes searched, `u` and `v` along
+/// them.
+#[derive(Clone, Copy, Debug)]
+struct Frame {
+    u: DVec3,
+    v: DVec3,
+    n: DVec3,
+}
+
+impl Frame {
+    /// The frames searched: the three axes (exact: coordinates are only
+    /// permuted), the six diagonals of the axis planes and the four of the
+    /// cube, so that a rounded edge or corner has a plane within ~30° of
+    /// its surface.
+    fn all() -> Vec<Frame> {
+        let axis = |i: usize| {
+            let mut e = DVec3::ZERO;
+            e[i] = 1.0;
+            e
+        };
+        let mut frames: Vec<Frame> = (0..3)
+            .map(|i| Frame {
+                u: axis((i + 1) % 3),
+                v: axis((i + 2) % 3),
+                n: axis(i),
+            })
+            .collect();
+        let diagonals = [
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(1.0, -1.0, 0.0),
+            DVec3::new(0.0, 1.0, 1.0),
+            DVec3::new(0.0, 1.0, -1.0),
+            DVec3::new(1.0, 0.0, 1.0),
+            DVec3::new(1.0, 0.0, -1.0),
+            DVec3::new(1.0, 1.0, 1.0),
+            DVec3::new(1.0, 1.0, -1.0),
+            DVec3::new(1.0, -1.0, 1.0),
+            DVec3::new(-1.0, 1.0, 1.0),
+        ];
+        for d in diagonals {
+            let n = d.normalize();
+            let other = if n.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+            let u = n.cross(other).normalize();
+            frames.push(Frame { u, v: n.cross(u), n });
+        }
+        frames
+    }
+
+    /// `p` in the frame: `(u, v, n)`.
+    fn local(&self, p: DVec3) -> DVec3 {
+        DVec3::new(p.dot(self.u), p.dot(self.v), p.dot(self.n))
+    }
+
+    /// The scene-local point of frame coordinates `l`.
+    fn world(&self, l: DVec3) -> DVec3 {
+        self.u * l.x + self.v * l.y + self.n * l.z
+    }
+}
+
+/// One closed set's box and the rectangles inside it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Solid {
+    pub lo: DVec3,
+    pub hi: DVec3,
+    /// The object all its triangles belong to, if one does.
+    pub object: Option<u32>,
+    /// Searched as a large set (finer cells, more rectangles kept).
+    pub large: bool,
+    /// Largest first.
+    pub rects: Vec<SolidRect>,
+}
+
+/// The solid occluders of `surfaces` (a scene of `extent`): one [`Solid`]
+/// per large closed set that holds any rectangle.
+pub fn find(surfaces: &Surfaces, owner: &[u32], extent: f64) -> Vec<Solid> {
+    let closed = surfaces.closed_components();
+    let boxes = surfaces.component_boxes();
+    let m = margin(extent);
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); boxes.len()];
+    for (t, &c) in surfaces.component_of().iter().enumerate() {
+        if closed[c as usize] {
+            members[c as usize].push(t as u32);
+        }
+    }
+    (0..boxes.len())
+        .filter(|&c| closed[c])
+        .filter_map(|c| {
+            let [lo, hi] = boxes[c];
+            let large = (hi - lo).max_element() >= LARGE_SHARE * extent;
+            let cells = if large { GRID } else { SMALL_GRID };
+            let cell = (hi - lo).max_element() / cells as f64;
+            let mut rects: Vec<SolidRect> = Frame::all()
+                .into_iter()
+                .flat_map(|frame| rects_across(surfaces, &members[c], frame, cell, m))
+                .collect();
+            rects.sort_by(|a, b| b.area().total_cmp(&a.area()));
+            rects.truncate(if large { LARGE_KEEP } else { SMALL_KEEP });
+            let first = owner[members[c][0] as usize];
+            let object = members[c].iter().all(|&t| owner[t as usize] == first).then_some(first);
+            (!rects.is_empty()).then_some(Solid {
+                lo,
+                hi,
+                object,
+                large,
+                rects,
+            })
+        })
+        .collect()
+}
+
+/// `rects` (largest first) less each one that mostly lies over an earlier
+/// one of a near parallel plane: seen from anywhere but edge-on, those two
+/// cover nearly the same rays.
+fn distinct(mut rects: Vec<(f64, DVec2, DVec2)>, cell: f64) -> Vec<(f64, DVec2, DVec2)> {
+    let reach = REACH * cell;
+    let area = |r: &(f64, DVec2, DVec2)| (r.2 - r.1).x * (r.2 - r.1).y;
+    rects.sort_by(|a, b| area(b).total_cmp(&area(a)));
+    let mut kept: Vec<(f64, DVec2, DVec2)> = Vec::new();
+    for r in rects {
+        let covered = kept.iter().any(|k| {
+            if (k.0 - r.0).abs() > reach {
+                return false;
+            }
+            let d = (r.2.min(k.2) - r.1.max(k.1)).max(DVec2::ZERO);
+            d.x * d.y >= OVERLAP * area(&r)
+        });
+        if !covered {
+            kept.push(r);
+        }
+    }
+    kept
+}
+
+/// The cells of one plane.
+struct Grid {
+    origin: DVec2,
+    cell: f64,
+    nu: usize,
+    nv: usize,
+}
+
+impl Grid {
+    /// The cells whose closed squares meet the closed box `[lo, hi]`.
+    fn span(&self, lo: DVec2, hi: DVec2) -> Option<([usize; 2], [usize; 2])> {
+        let first = |x: f64, n: usize| (x.floor().max(0.0) as usize).min(n);
+        let a = (lo - self.origin) / self.cell;
+        let b = (hi - self.origin) / self.cell;
+        let (i0, j0) = (first(a.x, self.nu), first(a.y, self.nv));
+        let (i1, j1) = (first(b.x, self.nu - 1), first(b.y, self.nv - 1));
+        if b.x < 0.0 || b.y < 0.0 || i0 >= self.nu || j0 >= self.nv {
+            return None;
+        }
+        Some(([i0, i1], [j0, j1]))
+    }
+
+    /// Cell `(i, j)`'s low corner.
+    fn at(&self, i: usize, j: usize) -> DVec2 {
+        self.origin + DVec2::new(i as f64, j as f64) * self.cell
+    }
+}
+
+/// The rectangles inside the closed set `tris` on planes across `frame`'s
+/// `n`, in cells of side `cell`.
+fn rects_across(surfaces: &Surfaces, tris: &[u32], frame: Frame, cell: f64, m: f64) -> Vec<SolidRect> {
+    let local: Vec<[DVec3; 3]> = tris
+        .iter()
+        .map(|&t| surfaces.triangles[t as usize].map(|p| frame.local(p)))
+        .collect();
+    let boxes: Vec<[DVec3; 2]> = local
+        .iter()
+        .map(|t| [t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2])])
+        .collect();
+    let (lo, hi) = boxes
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(a, b), [l, h]| (a.min(*l), b.max(*h)));
+    let grid = Grid {
+        origin: lo.truncate() - DVec2::splat(cell),
+        cell,
+        nu: ((hi.x - lo.x) / cell).ceil() as usize + 2,
+        nv: ((hi.y - lo.y) / cell).ceil() as usize + 2,
+    };
+    let planes = (((hi.z - lo.z) / cell).ceil() as usize).max(1);
+    let step = (hi.z - lo.z) / planes as f64;
+    let plane_w = |k: usize| lo.z + (k as f64 + 0.5) * step;
+    // Each plane's triangles (a plane or so more on each side than the
+    // box says: the clip below decides), and a coarse grid of them by
+    // their extent along the planes.
+    let mut on_plane: Vec<Vec<u32>> = vec![Vec::new(); planes];
+    let buckets = Grid {
+        origin: grid.origin,
+        cell: grid.cell * (grid.nu.max(grid.nv) as f64 / BUCKETS as f64),
+        nu: BUCKETS,
+        nv: BUCKETS,
+    };
+    let mut in_bucket: Vec<Vec<u32>> = vec![Vec::new(); BUCKETS * BUCKETS];
+    let g = DVec3::splat(m);
+    for (t, [blo, bhi]) in boxes.iter().enumerate() {
+        let (blo, bhi) = (*blo - g, *bhi + g);
+        let k0 = ((blo.z - lo.z) / step - 1.5).max(0.0) as usize;
+        let k1 = (((bhi.z - lo.z) / step + 0.5).max(0.0) as usize).min(planes - 1);
+        for list in on_plane.iter_mut().take(k1 + 1).skip(k0) {
+            list.push(t as u32);
+        }
+        if let Some(([i0, i1], [j0, j1])) = buckets.span(blo.truncate(), bhi.truncate()) {
+            for i in i0..=i1 {
+                for j in j0..=j1 {
+                    in_bucket[i * BUCKETS + j].push(t as u32);
+                }
+            }
+        }
+    }
+    let beyond = hi.z + cell;
+    let found: Vec<(f64, DVec2, DVec2)> = (0..planes)
+        .into_par_iter()
+        .flat_map_iter(|k| {
+            let w = plane_w(k);
+            // Whether the point `p` of the plane has odd parity: crossings
+            // of the segment from it along `n` to beyond the set, counted
+            // exactly on the scene's triangles (the segment's ends are
+            // rounded from the frame; no triangle lies within the margin of
+            // a clear cell, so that moves no crossing).
+            let parity = |p: DVec2| -> Option<bool> {
+                let ([i, _], [j, _]) = buckets.span(p, p)?;
+                let from = frame.world(p.extend(w));
+                let to = frame.world(p.extend(beyond));
+                let mut odd = false;
+                for &t in &in_bucket[i * BUCKETS + j] {
+                    let [blo, bhi] = boxes[t as usize];
+                    if bhi.z < w - m || blo.x > p.x + m || bhi.x < p.x - m || blo.y > p.y + m || bhi.y < p.y - m {
+                        continue;
+                    }
+                    match crossing(from, to, &surfaces.triangles[tris[t as usize] as usize]) {
+                        Crossing::Through => odd = !odd,
+                        Crossing::Misses => {}
+                        Crossing::Degenerate => return None,
+                    }
+                }
+                Some(odd)
+            };
+            let inside = inside_cells(&local, &on_plane[k], &grid, w, m, parity);
+            largest_rects(inside, &grid).into_iter().map(move |(a, b)| (w, a, b))
+        })
+        .collect();
+    distinct(found, cell)
+        .into_iter()
+        .map(|(w, a, b)| SolidRect {
+            corners: [a, DVec2::new(b.x, a.y), b, DVec2::new(a.x, b.y)].map(|c| frame.world(c.extend(w))),
+            normal: frame.n,
+            d: -w,
+        })
+        .collect()
+}
+
+/// Per cell of `grid` on the plane `n = w` of a frame, whether it lies
+/// inside the closed set whose triangles (frame coordinates) near the
+/// plane are `near`: clear of all of them, and joined to a cell whose
+/// centre `parity` finds odd.
+fn inside_cells(
+    local: &[[DVec3; 3]],
+    near: &[u32],
+    grid: &Grid,
+    w: f64,
+    m: f64,
+    parity: impl Fn(DVec2) -> Option<bool>,
+) -> Vec<bool> {
+    let (nu, nv) = (grid.nu, grid.nv);
+    let mut clear = vec![true; nu * nv];
+    let slab_lo = DVec2::NEG_INFINITY.extend(w - m);
+    let slab_hi = DVec2::INFINITY.extend(w + m);
+    for &t in near {
+        let tri = &local[t as usize];
+        let clipped = clip_to_box(tri, slab_lo, slab_hi);
+        let part: &[DVec3] = match &clipped {
+            Some((_, 0)) => continue,
+            Some((poly, len)) => &poly[..*len],
+            None => tri,
+        };
+        let (mut blo, mut bhi) = (DVec2::splat(f64::INFINITY), DVec2::splat(f64::NEG_INFINITY));
+        for p in part {
+            let q = p.truncate();
+            (blo, bhi) = (blo.min(q), bhi.max(q));
+        }
+        if let Some(([i0, i1], [j0, j1])) = grid.span(blo - DVec2::splat(m), bhi + DVec2::splat(m)) {
+            for i in i0..=i1 {
+                for j in j0..=j1 {
+                    clear[i * nv + j] = false;
+                }
+            }
+        }
+    }
+    // Regions of clear cells joined by sides, each judged by its parity.
+    let mut inside = vec![false; nu * nv];
+    let mut seen = vec![false; nu * nv];
+    let mut stack = Vec::new();
+    let mut region = Vec::new();
+    for start in 0..nu * nv {
+        if !clear[start] || seen[start] {
+            continue;
+        }
+        region.clear();
+        seen[start] = true;
+        stack.push(start);
+        while let Some(c) = stack.pop() {
+            region.push(c);
+            let (i, j) = (c / nv, c % nv);
+            let mut push = |n: usize| {
+                if clear[n] && !seen[n] {
+                    seen[n] = true;
+                    stack.push(n);
+                }
+            };
+            if i > 0 {
+                push(c - nv);
+            }
+            if i + 1 < nu {
+                push(c + nv);
+            }
+            if j > 0 {
+                push(c - 1);
+            }
+            if j + 1 < nv {
+                push(c + 1);
+            }
+        }
+        let odd = region
+            .iter()
+            .take(PARITY_TRIES)
+            .find_map(|&c| parity(grid.at(c / nv, c % nv) + DVec2::splat(0.5 * grid.cell)))
+            .unwrap_or(false);
+        if odd {
+            for &c in &region {
+                inside[c] = true;
+            }
+        }
+    }
+    inside
+}
+
+/// Rectangles of `inside` cells, largest first, each taking cells no
+/// earlier one took, while they have [`MIN_CELLS`]: as `(lo, hi)` corners.
+fn largest_rects(mut free: Vec<bool>, grid: &Grid) -> Vec<(DVec2, DVec2)> {
+    let (nu, nv) = (grid.nu, grid.nv);
+    let mut out = Vec::new();
+    let mut heights = vec![0usize; nv];
+    let mut stack: Vec<(usize, usize)> = Vec::new();
+    while out.len() < PER_PLANE {
+        // The largest all-free rectangle: per row `i`, column heights of
+        // free cells ending there, and the largest rectangle under them.
+        let mut best = (0usize, [0usize; 4]);
+        heights.fill(0);
+        for i in 0..nu {
+            for (h, &f) in heights.iter_mut().zip(&free[i * nv..(i + 1) * nv]) {
+                *h = if f { *h + 1 } else { 0 };
+            }
+            stack.clear();
+            for j in 0..=nv {
+                let h = heights.get(j).copied().unwrap_or(0);
+                let mut start = j;
+                while let Some(&(s, sh)) = stack.last() {
+                    if sh < h {
+                        break;
+                    }
+                    stack.pop();
+                    let area = sh * (j - s);
+                    if area > best.0 {
+                        best = (area, [i + 1 - sh, i, s, j - 1]);
+                    }
+                    start = s;
+                }
+                if h > 0 {
+                    stack.push((start, h));
+                }
+            }
+        }
+        let (area, [i0, i1, j0, j1]) = best;
+        if area < MIN_CELLS {
+            break;
+        }
+        for i in i0..=i1 {
+            for j in j0..=j1 {
+                free[i * nv + j] = false;
+            }
+        }
+        out.push((grid.at(i0, j0), grid.at(i1 + 1, j1 + 1)));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The surface of the box `[lo, hi]`, each face an `n × n` grid with
+    /// corners shared bit for bit; `hole` leaves out cell `(i, j)` of the
+    /// `+z` face.
+    fn box_surface(lo: DVec3, hi: DVec3, n: usize, hole: Option<(usize, usize)>) -> Vec<[DVec3; 3]> {
+        let at = |axis: usize, i: usize| {
+            if i == n {
+                hi[axis]
+            } else {
+                lo[axis] + (hi[axis] - lo[axis]) * i as f64 / n as f64
+            }
+        };
+        let mut tris = Vec::new();
+        for axis in 0..3 {
+            let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
+            for side in 0..2 {
+                for i in 0..n {
+                    for j in 0..n {
+                        if axis == 2 && side == 1 && hole == Some((i, j)) {
+                            continue;
+                        }
+                        let p = |di: usize, dj: usize| {
+                            let mut p = DVec3::ZERO;
+                            p[axis] = if side == 0 { lo[axis] } else { hi[axis] };
+                            p[ua] = at(ua, i + di);
+                            p[va] = at(va, j + dj);
+                            p
+                        };
+                        tris.push([p(0, 0), p(1, 0), p(1, 1)]);
+                        tris.push([p(0, 0), p(1, 1), p(0, 1)]);
+                    }
+                }
+            }
+        }
+        tris
+    }
+
+    /// Whether `p` has odd parity, by brute force on a ray in a direction
+    /// no test surface is parallel to.
+    fn odd(p: DVec3, tris: &[[DVec3; 3]]) -> bool {
+        let far = p + DVec3::new(0.3713, 0.5119, 0.7741) * 1e3;
+        tris.iter()
+            .filter(|t| {
+                let c = crossing(p, far, t);
+                assert_ne!(c, Crossing::Degenerate, "the brute-force ray is generic");
+                c == Crossing::Through
+            })
+            .count()
+            % 2
+            == 1
+    }
+
+    /// Whether segment `p q` comes within 10⁻⁹ of rectangle `r` where it
+    /// meets `r`'s plane (or lies in it at an end).
+    fn touches(r: &SolidRect, p: DVec3, q: DVec3) -> bool {
+        let [a, b, _, d] = r.corners;
+        let within = |x: DVec3| {
+            let (e, f) = (b - a, d - a);
+            let (s, t) = ((x - a).dot(e) / e.length_squared(), (x - a).dot(f) / f.length_squared());
+            (-1e-9..=1.0 + 1e-9).contains(&s) && (-1e-9..=1.0 + 1e-9).contains(&t)
+        };
+        let (dp, dq) = (r.normal.dot(p) + r.d, r.normal.dot(q) + r.d);
+        if dp.abs() < 1e-12 && dq.abs() < 1e-12 {
+            return within(p) || within(q);
+        }
+        if dp * dq > 0.0 {
+            return false;
+        }
+        within(p + (q - p) * (dp / (dp - dq)))
+    }
+
+    /// Checks that every rectangle of `solid` lies inside the closed
+    /// surface `tris`: points of it have odd parity, and no edge of a
+    /// triangle crosses it nor an edge of it a triangle.
+    fn all_inside(solid: &Solid, tris: &[[DVec3; 3]]) {
+        for r in &solid.rects {
+            let [a, b, c, d] = r.corners;
+            for p in [a, b, c, d, (a + c) * 0.5, (a + b) * 0.5, (b + c) * 0.5, (c + d) * 0.5, (d + a) * 0.5] {
+                assert!(odd(p, tris), "{p} of {r:?} is outside");
+                assert!((r.normal.dot(p) + r.d).abs() < 1e-9, "{p} is off its plane");
+            }
+            for t in tris {
+                for k in 0..3 {
+                    assert!(!touches(r, t[k], t[(k + 1) % 3]), "{r:?} meets {t:?}");
+                    for (p, q) in [(a, b), (b, c), (c, d), (d, a)] {
+                        assert_eq!(crossing(p, q, t), Crossing::Misses, "{r:?} meets {t:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn rectangles_of_a_closed_box_lie_inside_it_and_span_it() {
+        let tris = box_surface(DVec3::splat(-2.0), DVec3::splat(2.0), 4, None);
+        let owner = vec![7; tris.len()];
+        let solids = find(&Surfaces::new(tris.clone()), &owner, 4.0);
+        assert_eq!(solids.len(), 1);
+        let s = &solids[0];
+        assert_eq!(s.object, Some(7));
+        assert!(s.large);
+        assert!(!s.rects.is_empty() && s.rects.len() <= LARGE_KEEP);
+        all_inside(s, &tris);
+        // The largest is a cross-section, all but its edge cells.
+        assert!(s.rects[0].area() > 0.9 * 16.0, "{}", s.rects[0].area());
+    }
+
+    #[test]
+    fn nested_closed_surfaces_each_hold_their_own_rectangles() {
+        // Two separate closed boxes: everything inside the outer one is
+        // hidden from outside it, the inner one's inside too.
+        let outer = box_surface(DVec3::splat(-2.0), DVec3::splat(2.0), 4, None);
+        let inner = box_surface(DVec3::splat(-1.0), DVec3::new(1.0, 1.5, 1.0), 3, None);
+        let tris: Vec<_> = outer.iter().chain(&inner).copied().collect();
+        let owner = vec![0; tris.len()];
+        let solids = find(&Surfaces::new(tris), &owner, 4.0);
+        assert_eq!(solids.len(), 2);
+        let (o, i) = if solids[0].hi.x > 1.5 { (&solids[0], &solids[1]) } else { (&solids[1], &solids[0]) };
+        all_inside(o, &outer);
+        all_inside(i, &inner);
+    }
+
+    #[test]
+    fn an_open_surface_holds_none() {
+        // A box with one cell missing: whether a point is inside depends on
+        // the ray, so nothing is proved; the closed box within it still is.
+        let open = box_surface(DVec3::splat(-2.0), DVec3::splat(2.0), 8, Some((3, 3)));
+        let closed = box_surface(DVec3::splat(-1.0), DVec3::splat(1.0), 4, None);
+        let tris: Vec<_> = open.iter().chain(&closed).copied().collect();
+        let owner = vec![0; tris.len()];
+        let surfaces = Surfaces::new(tris);
+        assert_eq!(surfaces.closed_components().iter().filter(|c| **c).count(), 1);
+        let solids = find(&surfaces, &owner, 4.0);
+        assert_eq!(solids.len(), 1);
+        all_inside(&solids[0], &closed);
+    }
+
+    #[test]
+    fn a_small_closed_part_keeps_its_largest_cross_sections_and_its_owner() {
+        let mut tris = box_surface(DVec3::splat(-2.0), DVec3::splat(2.0), 4, None);
+        let part = box_surface(DVec3::new(0.5, 0.5, 0.5), DVec3::new(0.8, 0.7, 0.9), 2, None);
+        let mut owner = vec![0; tris.len()];
+        owner.extend(vec![3; part.len()]);
+        tris.extend(part);
+        let solids = find(&Surfaces::new(tris.clone()), &owner, 4.0);
+        let small: Vec<_> = solids.iter().filter(|s| !s.large).collect();
+        assert_eq!(small.len(), 1);
+        assert_eq!(small[0].object, Some(3));
+        assert!(small[0].rects.len() <= SMALL_KEEP);
+        for r in &small[0].rects {
+            for c in r.corners {
+                assert!(c.cmpgt(DVec3::new(0.5, 0.5, 0.5)).all() && c.cmplt(DVec3::new(0.8, 0.7, 0.9)).all());
+            }
+        }
+    }
+}
