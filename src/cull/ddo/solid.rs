@@ -1,10 +1,10 @@
 //! Solid occluders: rectangles that lie inside a closed opaque surface,
-//! found at bake time beside the DDO masks. They are the "merged
-//! occluders" Bernardini et al. §3 obtain from a node's faces where a
-//! model is solid, taken from a whole closed surface instead of one node:
-//! a car body's shell holds rectangles metres long where its valid
-//! octree faces are centimetres, so a frame draws tens of polygons where
-//! it drew thousands of faces (docs/ddo.md measures both).
+//! found at bake time beside the DDO masks. They are not in Bernardini et
+//! al.; they answer what §3's faces cannot on a thin curved skin, where a
+//! face is valid only when a node is a few centimetres across: inside a
+//! closed skin a rectangle metres long hides from every eye outside it,
+//! with no viewspace regions at all, so a frame draws tens of polygons
+//! where it drew thousands of faces (docs/ddo.md measures both).
 //!
 //! **What is proved.** Let `S` be a connected set of the scene's opaque
 //! static triangles with an even number of its triangles on every edge
@@ -28,11 +28,17 @@
 //! the box.
 //!
 //! **Why rounding cannot break it.** Corners are the scene's `f32` values,
-//! held exactly in `f64`; a triangle's part near the plane and its box are
-//! computed to ~10⁻¹⁶ of the scene's size, and the box is grown by
-//! [`margin`] (10⁻⁹ of it), so a cell whose computed bounds the grown box
-//! misses is clear of the triangle by far more than any rounding. The
-//! rectangle drawn has exactly the computed bounds of its cells.
+//! held exactly in `f64`. A triangle's corners in a plane's frame (exact
+//! for the three axes, which only permute coordinates), its part near the
+//! plane and that part's box are computed to ~10⁻¹⁶ of the scene's size,
+//! and the box is grown by [`margin`] (10⁻⁹ of it), so a cell whose
+//! computed bounds the grown box misses is clear of the triangle by far
+//! more than any rounding. The same holds for the segment whose crossings
+//! give a cell's parity: its ends, turned back into scene coordinates,
+//! move by ~10⁻¹⁶, and no triangle lies that near a clear cell. A
+//! rectangle's corners move as much, so every point drawn is still
+//! inside; the draw also takes it the margin farther from the eye than its
+//! plane.
 
 use glam::{DVec2, DVec3};
 use rayon::prelude::*;
