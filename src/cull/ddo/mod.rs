@@ -938,7 +938,7 @@ mod tests {
     /// The closed surface of the box `[lo, hi]`, each face an `n × n` grid
     /// whose corners are shared bit for bit with its neighbours; `hole`
     /// leaves out cell `(i, j)` of the `+z` face.
-    pub(crate) fn grid_box(b: &mut SceneBuilder, lo: DVec3, hi: DVec3, n: usize, hole: Option<(usize, usize)>) {
+    pub(crate) fn grid_box_triangles(lo: DVec3, hi: DVec3, n: usize, hole: Option<(usize, usize)>) -> Vec<[DVec3; 3]> {
         let at = |axis: usize, i: usize| {
             if i == n {
                 hi[axis]
@@ -968,7 +968,12 @@ mod tests {
                 }
             }
         }
-        b.add_triangles(tris, false);
+        tris
+    }
+
+    /// [`grid_box_triangles`] added to the object being built.
+    pub(crate) fn grid_box(b: &mut SceneBuilder, lo: DVec3, hi: DVec3, n: usize, hole: Option<(usize, usize)>) {
+        b.add_triangles(grid_box_triangles(lo, hi, n, hole), false);
     }
 
     fn boxed_scene(hole: Option<(usize, usize)>) -> Arc<Scene> {

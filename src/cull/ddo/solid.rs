@@ -496,43 +496,8 @@ fn largest_rects(mut free: Vec<bool>, grid: &Grid) -> Vec<(DVec2, DVec2)> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::grid_box_triangles as box_surface;
     use super::*;
-
-    /// The surface of the box `[lo, hi]`, each face an `n × n` grid with
-    /// corners shared bit for bit; `hole` leaves out cell `(i, j)` of the
-    /// `+z` face.
-    fn box_surface(lo: DVec3, hi: DVec3, n: usize, hole: Option<(usize, usize)>) -> Vec<[DVec3; 3]> {
-        let at = |axis: usize, i: usize| {
-            if i == n {
-                hi[axis]
-            } else {
-                lo[axis] + (hi[axis] - lo[axis]) * i as f64 / n as f64
-            }
-        };
-        let mut tris = Vec::new();
-        for axis in 0..3 {
-            let (ua, va) = ((axis + 1) % 3, (axis + 2) % 3);
-            for side in 0..2 {
-                for i in 0..n {
-                    for j in 0..n {
-                        if axis == 2 && side == 1 && hole == Some((i, j)) {
-                            continue;
-                        }
-                        let p = |di: usize, dj: usize| {
-                            let mut p = DVec3::ZERO;
-                            p[axis] = if side == 0 { lo[axis] } else { hi[axis] };
-                            p[ua] = at(ua, i + di);
-                            p[va] = at(va, j + dj);
-                            p
-                        };
-                        tris.push([p(0, 0), p(1, 0), p(1, 1)]);
-                        tris.push([p(0, 0), p(1, 1), p(0, 1)]);
-                    }
-                }
-            }
-        }
-        tris
-    }
 
     /// Whether `p` has odd parity, by brute force on a ray in a direction
     /// no test surface is parallel to.
