@@ -244,13 +244,8 @@ impl DdoCulling {
     /// near plane ([`solid`]'s doc says why they hide from such an eye).
     fn draw_solid(&self, k: u32, view: &View, screen: &Screen, canvas: &mut Canvas, floor: f64) {
         let s = &self.tree.solids()[k as usize];
-        let (eye, forward) = (view.eye(), view.basis().forward);
-        // The box's nearest depth: at the corner most against the view.
-        let nearest: f64 = (0..3)
-            .map(|i| (if forward[i] >= 0.0 { s.lo[i] } else { s.hi[i] } - eye[i]) * forward[i])
-            .sum();
         let needed = view.camera().near * (1.0 + NEAR_SLACK) + floor;
-        if nearest.partial_cmp(&needed).is_none_or(Ordering::is_lt) {
+        if nearest_depth(view, s.lo, s.hi).partial_cmp(&needed).is_none_or(Ordering::is_lt) {
             return;
         }
         for r in &s.rects {
@@ -265,27 +260,18 @@ impl DdoCulling {
     /// `traversal=objects`: each object in the frustum, nearest first,
     /// tested by its box; one found visible has its own solids drawn.
     fn cull_objects(&self, view: &View, screen: &Screen, floor: f64, state: &mut DdoState, out: &mut VisibleSet) -> CullCounters {
-        let (eye, forward) = (view.eye(), view.basis().forward);
         let frustum = view.frustum();
         state.order.clear();
         for (id, o) in self.scene.objects().iter().enumerate() {
             if frustum.intersects(&o.bounds) {
-                let (lo, hi) = (o.bounds.min.as_dvec3(), o.bounds.max.as_dvec3());
-                let nearest: f64 = (0..3)
-                    .map(|i| (if forward[i] >= 0.0 { lo[i] } else { hi[i] } - eye[i]) * forward[i])
-                    .sum();
+                let nearest = nearest_depth(view, o.bounds.min.as_dvec3(), o.bounds.max.as_dvec3());
                 state.order.push((nearest, id as u32));
             }
         }
         state.order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let canvas = state.canvas.as_mut().expect("objects are tested on the screen map");
         for &(_, id) in &state.order {
-            let hidden = match screen.footprint(&self.scene.objects()[id as usize].bounds) {
-                Footprint::Near => false,
-                Footprint::Nothing => true,
-                Footprint::Cells(rect, w) => canvas.buffer.hides(rect, w),
-            };
-            if !hidden {
+            if !screen_hides(screen, &mut canvas.buffer, &self.scene.objects()[id as usize].bounds) {
                 out.push(id);
                 for &k in &self.object_solids[id as usize] {
                     self.draw_solid(k, view, screen, canvas, floor);
@@ -449,9 +435,6 @@ impl CullMethod for DdoCulling {
         let mut walk = Walk {
             screen,
             culling: self,
-            tree: &self.tree,
-            bounds: &self.bounds,
-            scene: &self.scene,
             view,
             projection,
             state,
@@ -464,6 +447,25 @@ impl CullMethod for DdoCulling {
             nodes_tested: walk.tested,
             in_frustum: InFrustum::Unknown,
         })
+    }
+}
+
+/// The nearest view depth of the box `[lo, hi]`: at its corner most
+/// against the view.
+fn nearest_depth(view: &View, lo: DVec3, hi: DVec3) -> f64 {
+    let (eye, forward) = (view.eye(), view.basis().forward);
+    (0..3)
+        .map(|i| (if forward[i] >= 0.0 { lo[i] } else { hi[i] } - eye[i]) * forward[i])
+        .sum()
+}
+
+/// Whether `buffer` hides all of box `b`: it covers no pixel centre, or
+/// every centre it covers holds an occluder nearer than all of it.
+fn screen_hides(screen: &Screen, buffer: &mut DepthBuffer, b: &Aabb) -> bool {
+    match screen.footprint(b) {
+        Footprint::Near => false,
+        Footprint::Nothing => true,
+        Footprint::Cells(rect, w) => buffer.hides(rect, w),
     }
 }
 
@@ -668,11 +670,8 @@ impl Projection {
 struct Walk<'a> {
     /// With `map=screen`, the view against the canvas.
     screen: Option<Screen>,
+    /// The method: its octree, node boxes, scene and solids.
     culling: &'a DdoCulling,
-    tree: &'a Octree,
-    /// Per node, its `f32` box.
-    bounds: &'a [Aabb],
-    scene: &'a Scene,
     view: &'a View,
     projection: Projection,
     state: &'a mut DdoState,
@@ -684,8 +683,8 @@ struct Walk<'a> {
 
 impl Walk<'_> {
     fn visit(&mut self, n: usize, mask: PlaneMask) {
-        let node = self.tree.nodes()[n];
-        let bounds = self.bounds[n];
+        let node = self.culling.tree.nodes()[n];
+        let bounds = self.culling.bounds[n];
         let frustum = self.view.frustum();
         let (side, mask) = if mask == 0 {
             (Side::Inside, 0)
@@ -700,11 +699,11 @@ impl Walk<'_> {
             return;
         }
         if node.is_leaf() {
-            for &id in self.tree.objects_of(&node) {
+            for &id in self.culling.tree.objects_of(&node) {
                 if self.state.seen[id as usize] == self.state.frame {
                     continue;
                 }
-                let object = &self.scene.objects()[id as usize].bounds;
+                let object = &self.culling.scene.objects()[id as usize].bounds;
                 // On a screen map, the object's part in the leaf (every
                 // point of it that the leaf holds) is tested too: it may
                 // be hidden where the leaf is not, and its other parts
@@ -796,14 +795,10 @@ impl Walk<'_> {
     /// centre, or every centre it covers holds a face nearer than all of
     /// it.
     fn screen_hides(&mut self, screen: &Screen, b: &Aabb) -> bool {
-        let Some(canvas) = &mut self.state.canvas else {
-            return false;
-        };
-        match screen.footprint(b) {
-            Footprint::Near => false,
-            Footprint::Nothing => true,
-            Footprint::Cells(rect, w) => canvas.buffer.hides(rect, w),
-        }
+        self.state
+            .canvas
+            .as_mut()
+            .is_some_and(|canvas| screen_hides(screen, &mut canvas.buffer, b))
     }
 
     /// Whether each quarter of the cone `r` is [`Walk::covered`].
@@ -860,6 +855,7 @@ impl Walk<'_> {
             // Most faces are valid from no region: skip them before
             // finding the eye's.
             let mask = self
+                .culling
                 .tree
                 .mask(n, octree::face_index(axis, side), self.state.regions);
             if mask == 0 {
