@@ -178,8 +178,9 @@ pub struct Solid {
     pub rects: Vec<SolidRect>,
 }
 
-/// The solid occluders of `surfaces` (a scene of `extent`): one [`Solid`]
-/// per large closed set that holds any rectangle.
+/// The solid occluders of `surfaces` (a scene of `extent`, triangle `t`
+/// of object `owner[t]`): one [`Solid`] per closed set that holds any
+/// rectangle.
 pub fn find(surfaces: &Surfaces, owner: &[u32], extent: f64) -> Vec<Solid> {
     let closed = surfaces.closed_components();
     let boxes = surfaces.component_boxes();
@@ -248,7 +249,9 @@ struct Grid {
 }
 
 impl Grid {
-    /// The cells whose closed squares meet the closed box `[lo, hi]`.
+    /// The cells whose squares meet the box `[lo, hi]` (one whose square
+    /// only touches it along a side may be left out or not: callers grow
+    /// the box by the margin first, so the triangle inside stays clear).
     fn span(&self, lo: DVec2, hi: DVec2) -> Option<([usize; 2], [usize; 2])> {
         let first = |x: f64, n: usize| (x.floor().max(0.0) as usize).min(n);
         let a = (lo - self.origin) / self.cell;
