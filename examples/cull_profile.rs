@@ -12,7 +12,8 @@
 //! `ONLY=3,14,20` culls only those frames (for a profile of the frames
 //! near the median); `PER_FRAME=1` prints each frame's median time to
 //! stderr. `DDO_LEAF_TRIANGLES=128` bakes `ddo`'s octree with that many triangles
-//! a leaf (`--ddo-leaf-triangles` of `pvsd eval`) instead of the default.
+//! a leaf (`--ddo-leaf-triangles` of `pvsd eval`) instead of the default;
+//! `VIEWPORT=512x320` culls at that viewport.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -52,11 +53,15 @@ fn main() {
         Err(_) => context,
     };
     let methods = SceneMethods::prepare_with(scene.clone(), &registry, &context);
-    // `pvsd eval`'s viewports: MOC's 512×320 for unrelated views.
-    let viewport = if kind == WalkKind::Views {
-        [512, 320]
-    } else {
-        [1024, 768]
+    // `pvsd eval`'s viewports: MOC's 512×320 for unrelated views;
+    // `VIEWPORT=512x320` sets another (`--width`, `--height` of eval).
+    let viewport = match std::env::var("VIEWPORT") {
+        Ok(v) => {
+            let (w, h) = v.split_once('x').expect("VIEWPORT: WIDTHxHEIGHT");
+            [w.parse().expect("VIEWPORT width"), h.parse().expect("VIEWPORT height")]
+        }
+        Err(_) if kind == WalkKind::Views => [512, 320],
+        Err(_) => [1024, 768],
     };
     let params = WalkParams {
         kind,

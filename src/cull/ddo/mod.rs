@@ -91,7 +91,7 @@ pub use bake::bake;
 pub use map::{CellGrid, OcclusionMap, Rect, RectUnion};
 pub use octree::{Node, Octree, OctreeParams};
 pub use regions::Regions;
-pub use solid::{Solid, SolidRect};
+pub use solid::{Beyond, Solid, SolidRect};
 pub use validity::CLIP;
 
 use super::{
@@ -211,6 +211,10 @@ pub struct DdoCulling {
     object_solids: Vec<Vec<u32>>,
     /// How far a solid's rectangle may stray from its plane by rounding.
     margin: f64,
+    /// Per solid and rectangle, the sides of its plane an object reaches
+    /// into: a rectangle with nothing beyond it from the eye (the far
+    /// half of a closed body with nothing outside it) is not drawn.
+    beyond: Vec<Vec<Beyond>>,
 }
 
 impl DdoCulling {
@@ -229,7 +233,10 @@ impl DdoCulling {
             }
         }
         let margin = validity::margin(scene.bounds().extent().max_element() as f64);
+        let boxes: Vec<Aabb> = scene.objects().iter().map(|o| o.bounds).collect();
+        let beyond = solid::beyond(tree.solids(), &boxes);
         DdoCulling {
+            beyond,
             scene,
             tree,
             radius,
@@ -248,7 +255,10 @@ impl DdoCulling {
         if nearest_depth(view, s.lo, s.hi).partial_cmp(&needed).is_none_or(Ordering::is_lt) {
             return;
         }
-        for r in &s.rects {
+        for (r, beyond) in s.rects.iter().zip(&self.beyond[k as usize]) {
+            if !beyond.from(r, view.eye()) {
+                continue;
+            }
             let plane = Plane {
                 normal: r.normal,
                 d: r.d,

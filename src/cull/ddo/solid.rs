@@ -44,6 +44,7 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::validity::{Crossing, Surfaces, clip_to_box, crossing, margin};
+use crate::geom::Aabb;
 
 /// Cells along the longest side of a large closed set's box when it
 /// fills its box ([`large_grid`]).
@@ -115,6 +116,79 @@ impl SolidRect {
     pub fn area(&self) -> f64 {
         (self.corners[1] - self.corners[0]).length() * (self.corners[3] - self.corners[0]).length()
     }
+}
+
+/// Which sides of a rectangle's plane some object's box reaches into,
+/// strictly: `positive` where `normal · p + d > 0`, `negative` where it is
+/// below. Boxes that hold the whole rectangle are left out: a box's
+/// nearest point is never farther than a rectangle inside it, so the
+/// rectangle cannot hide it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Beyond {
+    pub positive: bool,
+    pub negative: bool,
+}
+
+impl Beyond {
+    /// Whether a box reaches past the plane on the side away from `eye`:
+    /// only there can the rectangle hide anything tested.
+    pub fn from(self, r: &SolidRect, eye: DVec3) -> bool {
+        if r.normal.dot(eye) + r.d > 0.0 {
+            self.negative
+        } else {
+            self.positive
+        }
+    }
+}
+
+/// [`Beyond`] of every rectangle of `solids` against `boxes`, per solid
+/// and rectangle. Rectangles share a few normals (one per searched frame
+/// and sign), so per normal the boxes are sorted once by how far they
+/// reach along it, and a rectangle looks at the farthest-reaching few
+/// until one does not hold it.
+pub fn beyond(solids: &[Solid], boxes: &[Aabb]) -> Vec<Vec<Beyond>> {
+    let mut out: Vec<Vec<Beyond>> = solids.iter().map(|s| vec![Beyond::default(); s.rects.len()]).collect();
+    let mut normals: Vec<DVec3> = Vec::new();
+    for s in solids {
+        for r in &s.rects {
+            if !normals.contains(&r.normal) {
+                normals.push(r.normal);
+            }
+        }
+    }
+    let boxes: Vec<(DVec3, DVec3)> = boxes
+        .iter()
+        .filter(|b| !b.is_empty())
+        .map(|b| (b.min.as_dvec3(), b.max.as_dvec3()))
+        .collect();
+    let holds = |&(lo, hi): &(DVec3, DVec3), r: &SolidRect| {
+        r.corners.iter().all(|c| c.cmpge(lo).all() && c.cmple(hi).all())
+    };
+    for n in normals {
+        // Each box's reach along n: its least and greatest n · p.
+        let reach = |&(lo, hi): &(DVec3, DVec3)| {
+            let (c, h) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+            let (mid, half) = (n.dot(c), n.abs().dot(h));
+            (mid - half, mid + half)
+        };
+        let mut by_max: Vec<(f64, usize)> = boxes.iter().enumerate().map(|(k, b)| (reach(b).1, k)).collect();
+        let mut by_min: Vec<(f64, usize)> = boxes.iter().enumerate().map(|(k, b)| (reach(b).0, k)).collect();
+        by_max.sort_by(|a, b| b.0.total_cmp(&a.0));
+        by_min.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (s, solid) in solids.iter().enumerate() {
+            for (i, r) in solid.rects.iter().enumerate().filter(|(_, r)| r.normal == n) {
+                // The plane is n · p = −d.
+                let first = |sorted: &[(f64, usize)]| {
+                    sorted.iter().find(|&&(_, k)| !holds(&boxes[k], r)).map(|&(v, _)| v)
+                };
+                out[s][i] = Beyond {
+                    positive: first(&by_max).is_some_and(|v| v > -r.d),
+                    negative: first(&by_min).is_some_and(|v| v < -r.d),
+                };
+            }
+        }
+    }
+    out
 }
 
 /// An orthonormal frame: `n` across the planes searched, `u` and `v` along
