@@ -58,7 +58,10 @@ fn main() {
     let viewport = match std::env::var("VIEWPORT") {
         Ok(v) => {
             let (w, h) = v.split_once('x').expect("VIEWPORT: WIDTHxHEIGHT");
-            [w.parse().expect("VIEWPORT width"), h.parse().expect("VIEWPORT height")]
+            [
+                w.parse().expect("VIEWPORT width"),
+                h.parse().expect("VIEWPORT height"),
+            ]
         }
         Err(_) if kind == WalkKind::Views => [512, 320],
         Err(_) => [1024, 768],

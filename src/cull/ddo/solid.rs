@@ -66,11 +66,23 @@ const SMALL_GRID: usize = 32;
 /// (docs/ddo.md).
 const LARGE_KEEP: usize = 150;
 
+/// How near a large set's surface must lie over a rectangle to count as
+/// covered by it ([`covering`]), as a share of the set's box's longest
+/// side: on the CAD body 13 cm, a few skin thicknesses. Twice that
+/// counted the far wall of narrow places and covered less.
+const COVER_REACH: f64 = 0.03;
+
 /// Rectangles kept of a small closed set (a part): its largest cross
 /// sections, which are most of what it hides of the parts behind it. On
 /// the CAD orbit a third hid 9 more objects for a sixth more cull time
 /// (docs/ddo.md): the thin shell's finer cells buy that room back.
 const SMALL_KEEP: usize = 2;
+
+/// A part's further cross-sections are kept only when at least this
+/// share of its largest's area: a small one seldom hides what the largest
+/// does not (on the CAD orbit 4 µs less a frame for 1 more object of 233:
+/// docs/ddo.md).
+const SECTION_SHARE: f64 = 0.7;
 
 /// Rectangles on near parallel planes of one frame within this many
 /// cells of each other, of which the smaller lies over the larger by at
@@ -292,7 +304,14 @@ pub fn find(surfaces: &Surfaces, owner: &[u32], extent: f64) -> Vec<Solid> {
                 .flat_map(|frame| rects_across(surfaces, &members[c], frame, cell, m))
                 .collect();
             rects.sort_by(|a, b| b.area().total_cmp(&a.area()));
-            rects.truncate(if large { LARGE_KEEP } else { SMALL_KEEP });
+            if large {
+                let reach = COVER_REACH * (hi - lo).max_element();
+                rects = covering(rects, &surfaces.triangles, &members[c], reach, LARGE_KEEP);
+            } else {
+                rects.truncate(SMALL_KEEP);
+                let largest = rects.first().map_or(0.0, SolidRect::area);
+                rects.retain(|r| r.area() >= SECTION_SHARE * largest);
+            }
             let first = owner[members[c][0] as usize];
             let object = members[c].iter().all(|&t| owner[t as usize] == first).then_some(first);
             (!rects.is_empty()).then_some(Solid {
@@ -304,6 +323,70 @@ pub fn find(surfaces: &Surfaces, owner: &[u32], extent: f64) -> Vec<Solid> {
             })
         })
         .collect()
+}
+
+/// Up to `keep` of `rects` (inside the closed set `tris`, indices into
+/// `triangles`), chosen one at a time by how much of the set's surface
+/// each newly covers: a surface point is covered by a rectangle it lies
+/// over, within `reach` of its plane. The largest rectangles overlap
+/// each other on the broad faces of a shell (one per plane that fits
+/// between its layers) while its rounded edges, where only narrow ones
+/// fit, stay open; choosing by new cover closes them first (docs/ddo.md).
+/// The surface is sampled at its triangles' centroids, weighted by area.
+/// Greedy with lazy gains: a rectangle's gain only falls as others are
+/// taken, so one whose recomputed gain still heads the queue is taken.
+fn covering(rects: Vec<SolidRect>, triangles: &[[DVec3; 3]], tris: &[u32], reach: f64, keep: usize) -> Vec<SolidRect> {
+    let samples: Vec<(DVec3, f64)> = tris
+        .iter()
+        .map(|&t| {
+            let [a, b, c] = triangles[t as usize];
+            ((a + b + c) / 3.0, 0.5 * (b - a).cross(c - a).length())
+        })
+        .collect();
+    // Per rectangle, the samples it covers, as indices.
+    let covers: Vec<Vec<u32>> = rects
+        .par_iter()
+        .map(|r| {
+            let (o, u, v) = (r.corners[0], r.corners[1] - r.corners[0], r.corners[3] - r.corners[0]);
+            let (uu, vv) = (u.length_squared(), v.length_squared());
+            (0..samples.len() as u32)
+                .filter(|&k| {
+                    let d = samples[k as usize].0 - o;
+                    let (s, t) = (d.dot(u) / uu, d.dot(v) / vv);
+                    (0.0..=1.0).contains(&s) && (0.0..=1.0).contains(&t) && d.dot(r.normal).abs() <= reach
+                })
+                .collect()
+        })
+        .collect();
+    let mut covered = vec![false; samples.len()];
+    let gain = |i: usize, covered: &[bool]| -> f64 {
+        covers[i].iter().filter(|&&k| !covered[k as usize]).map(|&k| samples[k as usize].1).sum()
+    };
+    // Largest gain first; on a tie, the earlier (larger) rectangle.
+    let mut queue: Vec<(f64, usize)> = (0..rects.len()).map(|i| (gain(i, &covered), i)).collect();
+    let mut out = Vec::new();
+    while out.len() < keep {
+        let Some(top) = (0..queue.len()).max_by(|&a, &b| {
+            queue[a].0.total_cmp(&queue[b].0).then(queue[b].1.cmp(&queue[a].1))
+        }) else {
+            break;
+        };
+        let (stale, i) = queue[top];
+        if stale <= 0.0 {
+            break; // nothing left adds cover
+        }
+        let fresh = gain(i, &covered);
+        if fresh < stale {
+            queue[top].0 = fresh;
+            continue;
+        }
+        queue.swap_remove(top);
+        for &k in &covers[i] {
+            covered[k as usize] = true;
+        }
+        out.push(rects[i]);
+    }
+    out
 }
 
 /// Cells along the longest side of the box `[lo, hi]` of the large
@@ -805,5 +888,73 @@ mod tests {
                 assert!(c.cmpgt(DVec3::new(0.5, 0.5, 0.5)).all() && c.cmplt(DVec3::new(0.8, 0.7, 0.9)).all());
             }
         }
+    }
+
+    /// A rectangle in the plane `z = z` over `[x0, x1] × [y0, y1]`,
+    /// facing +z.
+    fn flat(x0: f64, x1: f64, y0: f64, y1: f64, z: f64) -> SolidRect {
+        SolidRect {
+            corners: [
+                DVec3::new(x0, y0, z),
+                DVec3::new(x1, y0, z),
+                DVec3::new(x1, y1, z),
+                DVec3::new(x0, y1, z),
+            ],
+            normal: DVec3::Z,
+            d: -z,
+        }
+    }
+
+    #[test]
+    fn a_rectangle_is_kept_for_the_sides_some_other_box_reaches() {
+        let r = flat(0.0, 1.0, 0.0, 1.0, 0.0);
+        let solid = Solid {
+            lo: DVec3::new(0.0, 0.0, -0.1),
+            hi: DVec3::new(1.0, 1.0, 0.1),
+            object: Some(0),
+            large: true,
+            rects: vec![r],
+        };
+        let aabb = |lo: [f32; 3], hi: [f32; 3]| Aabb {
+            min: lo.into(),
+            max: hi.into(),
+        };
+        // The box holding it counts for neither side; one below it counts.
+        let holder = aabb([0.0, 0.0, -0.1], [1.0, 1.0, 0.1]);
+        let below = aabb([0.2, 0.2, -2.0], [0.4, 0.4, -1.0]);
+        let b = beyond(std::slice::from_ref(&solid), &[holder, below])[0][0];
+        assert_eq!(b, Beyond { positive: false, negative: true });
+        // From above, what lies below is beyond it; from below, nothing is.
+        assert!(b.from(&r, DVec3::new(0.5, 0.5, 5.0)));
+        assert!(!b.from(&r, DVec3::new(0.5, 0.5, -5.0)));
+        // Touching the plane from above is not reaching below it.
+        let touching = aabb([0.2, 0.2, 0.0], [0.4, 0.4, 1.0]);
+        let b = beyond(std::slice::from_ref(&solid), &[holder, touching])[0][0];
+        assert_eq!(b, Beyond { positive: true, negative: false });
+        assert!(!b.from(&r, DVec3::new(0.5, 0.5, 5.0)));
+    }
+
+    #[test]
+    fn covering_takes_the_rectangle_that_adds_most_surface_not_the_next_largest() {
+        // A 2 × 1 surface of small triangles at z = 0.
+        let mut tris = Vec::new();
+        for i in 0..40 {
+            for j in 0..20 {
+                let (x, y) = (i as f64 * 0.05, j as f64 * 0.05);
+                let p = |a: f64, b: f64| DVec3::new(x + a, y + b, 0.0);
+                tris.push([p(0.0, 0.0), p(0.05, 0.0), p(0.05, 0.05)]);
+                tris.push([p(0.0, 0.0), p(0.05, 0.05), p(0.0, 0.05)]);
+            }
+        }
+        let ids: Vec<u32> = (0..tris.len() as u32).collect();
+        // Largest first: two that overlap on the left, then one on the right.
+        let left = flat(0.0, 1.25, 0.0, 1.0, -0.01);
+        let shifted = flat(0.1, 1.3, 0.0, 1.0, -0.01);
+        let right = flat(1.0, 2.0, 0.0, 1.0, -0.01);
+        let kept = covering(vec![left, shifted, right], &tris, &ids, 0.05, 2);
+        assert_eq!(kept, vec![left, right]);
+        // Too far under the surface, a rectangle covers none of it.
+        let deep = flat(0.0, 2.0, 0.0, 1.0, -1.0);
+        assert!(covering(vec![deep], &tris, &ids, 0.05, 2).is_empty());
     }
 }

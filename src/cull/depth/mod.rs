@@ -54,4 +54,4 @@ pub mod screen;
 
 pub use buffer::{CellRect, DepthBuffer};
 pub use kernel::Kernel;
-pub use screen::{Footprint, Scratch, Screen};
+pub use screen::{Drawn, Footprint, Scratch, Screen};

@@ -63,6 +63,19 @@ pub enum Footprint {
     Cells(CellRect, f32),
 }
 
+/// What drawing a polygon did to the buffer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Drawn {
+    /// Some cell rose.
+    Raised,
+    /// It lies in view, but behind what the buffer holds wherever it
+    /// would write.
+    Behind,
+    /// It had nothing to draw: off the view, seen edge-on or from within
+    /// its thickness, clipped away by the near plane, or degenerate.
+    Missed,
+}
+
 /// A view set up against the buffer's cells.
 #[derive(Clone, Copy, Debug)]
 pub struct Screen {
@@ -171,7 +184,7 @@ impl Screen {
     /// (beyond the near plane) gets at least `1/z` of its farthest point
     /// among those centres, with the polygon taken `thickness` farther
     /// from the eye than its plane (what its triangles may stray from it).
-    /// Whether it was drawn (not off the view, edge-on, or hidden already).
+    /// What it did: [`Drawn`].
     pub fn draw<C: Copy + Into<DVec3>>(
         &self,
         corners: &[C],
@@ -179,7 +192,7 @@ impl Screen {
         thickness: f64,
         buffer: &mut DepthBuffer,
         scratch: &mut Scratch,
-    ) -> bool {
+    ) -> Drawn {
         // The plane seen from the eye: n·v = dist for its points v (view space).
         let mut n = DVec3::new(
             plane.normal.dot(self.right),
@@ -187,7 +200,7 @@ impl Screen {
             plane.normal.dot(self.forward),
         );
         if corners.len() < 3 {
-            return false;
+            return Drawn::Missed;
         }
         let mut dist = -plane.signed_distance(self.eye);
         if dist < 0.0 {
@@ -195,13 +208,13 @@ impl Screen {
         }
         let far_side = dist + thickness + self.slack;
         if dist <= 2.0 * (thickness + self.slack) {
-            return false; // seen edge-on, or from within its thickness: hides nothing sure
+            return Drawn::Missed; // seen edge-on, or from within its thickness: hides nothing sure
         }
         self.clip_near(corners, &mut scratch.poly);
         let poly = &scratch.poly[..];
         let len = poly.len();
         if len < 3 {
-            return false;
+            return Drawn::Missed;
         }
 
         // Screen bounds of the clipped polygon: the rows to visit.
@@ -212,7 +225,7 @@ impl Screen {
             (y_lo, y_hi) = (lesser(y_lo, y), greater(y_hi, y));
         }
         if !(x_hi >= 0.0 && x_lo <= self.width && y_hi >= 0.0 && y_lo <= self.height) {
-            return false;
+            return Drawn::Missed;
         }
         // Hidden already where it would write (each cell above its nearest
         // inverse depth): drawing it would change nothing.
@@ -225,7 +238,7 @@ impl Screen {
             y1: floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize,
         };
         if buffer.hides(cells, (1.0 / z_min) as f32) {
-            return false;
+            return Drawn::Behind;
         }
         // Edge functions A·x + B·y + C ≥ tol inside, one per edge from
         // corner k to k + 1, signed once the winding is known (below).
@@ -250,7 +263,7 @@ impl Screen {
             (a, a2) = (b, b2);
         }
         if !(orientation != 0.0 && orientation.is_finite()) {
-            return false;
+            return Drawn::Missed;
         }
         let s = orientation.signum();
         let edges = &edges[..];
@@ -261,7 +274,7 @@ impl Screen {
         let wc = (-n.x * self.tx + n.y * self.ty + n.z) / far_side;
         let w_round = TRANSFORM_SLACK * (wa.abs() * self.width + wb.abs() * self.height + wc.abs());
         if !(wa.is_finite() && wb.is_finite() && wc.is_finite()) {
-            return false;
+            return Drawn::Missed;
         }
 
         // Per edge, the bound on a row's cells as an affine function of
@@ -289,7 +302,7 @@ impl Screen {
             let p = (tol - ec) / ea - 0.5;
             let q = -eb / ea / c;
             if !(p.is_finite() && q.is_finite()) {
-                return false;
+                return Drawn::Missed;
             }
             if ea > 0.0 {
                 left.push((p / c, q, if q > 0.0 { bottom } else { 0.0 }));
@@ -349,8 +362,11 @@ impl Screen {
             let y = lesser(y_far + (k as i64 as f64) * c, last_centre);
             (wa * (lo as f64 * c + x_far) + wb * y + wc - w_round - f32_margin) as f32
         };
-        // False: hidden wherever it would write.
-        buffer.raise_rows(row_first, spans, base, step32)
+        if buffer.raise_rows(row_first, spans, base, step32) {
+            Drawn::Raised
+        } else {
+            Drawn::Behind
+        }
     }
 
     /// `corners` moved to view space and clipped to beyond the near plane,

@@ -66,7 +66,7 @@ use offers::{Offer, Offers, WHOLE};
 use proxies::Proxies;
 use surfaces::{Outside, Surfaces};
 
-use super::depth::{CellRect, DepthBuffer, Footprint, Kernel, Scratch, Screen};
+use super::depth::{CellRect, DepthBuffer, Drawn, Footprint, Kernel, Scratch, Screen};
 use super::occlusion::Visibility;
 use super::occlusion::hierarchy;
 use super::pool::BufferPool;
@@ -508,7 +508,7 @@ impl RasterCulling {
                 &mut canvas.buffer,
                 &mut canvas.scratch,
             );
-            if drawn {
+            if drawn == Drawn::Raised {
                 canvas.budget -= 1;
                 if canvas.budget == 0 {
                     return;
