@@ -40,7 +40,12 @@
 //! triangle that hides a rectangle is not clipped away). Those of large
 //! surfaces (a body's skin) are drawn before anything is tested; those of
 //! one object's small closed part once that object is found visible: one
-//! hidden lies behind what is drawn already and would add nothing. With
+//! hidden lies behind what is drawn already and would add nothing. A
+//! rectangle hides only what lies past its plane from the eye, so one
+//! past whose plane no other object's box reaches (the far half of a
+//! closed body with nothing outside it) is not drawn, and a part's
+//! sections stop at the first found behind what is drawn. Drawing less
+//! can only leave more visible. With
 //! `traversal=objects` the octree is not walked: the objects in the
 //! frustum, nearest box first, are tested by their boxes against the
 //! solids drawn so far. The depth test needs no order, so the order only

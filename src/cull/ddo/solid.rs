@@ -61,8 +61,9 @@ const GRID_THIN: usize = 512;
 /// Cells along the longest side of a small closed set's box.
 const SMALL_GRID: usize = 32;
 
-/// Rectangles kept of a large closed set, largest first: on the CAD body
-/// 150 cover its shell as well as 400 less a few objects' worth
+/// Rectangles kept of a large closed set, those that cover most of it
+/// ([`covering`]): on the CAD body 150 chosen so hide 7 more objects of
+/// the orbit's 240 than the 150 largest did, at the same cull time
 /// (docs/ddo.md).
 const LARGE_KEEP: usize = 150;
 
@@ -271,7 +272,8 @@ pub struct Solid {
     pub object: Option<u32>,
     /// Searched as a large set (finer cells, more rectangles kept).
     pub large: bool,
-    /// Largest first.
+    /// A part's largest first; a large set's in the order [`covering`]
+    /// chose them, most new cover first.
     pub rects: Vec<SolidRect>,
 }
 
