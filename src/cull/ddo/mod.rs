@@ -294,7 +294,11 @@ impl DdoCulling {
     /// tested by its box; one found visible has its own solids drawn.
     fn cull_objects(&self, view: &View, screen: &Screen, floor: f64, state: &mut DdoState, out: &mut VisibleSet) -> CullCounters {
         state.in_frustum.clear();
-        frustum_cull_subtree(&self.kd, &self.scene, view.frustum(), 0, ALL_PLANES, &mut state.in_frustum, None);
+        // (The kd-tree holds the static objects, movable ones left to the
+        // dispatch as for every method; a scene of none has no root.)
+        if !self.kd.nodes().is_empty() {
+            frustum_cull_subtree(&self.kd, &self.scene, view.frustum(), 0, ALL_PLANES, &mut state.in_frustum, None);
+        }
         state.order.clear();
         for &id in state.in_frustum.ids() {
             let b = &self.boxes[id as usize];
