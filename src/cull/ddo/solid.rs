@@ -44,7 +44,7 @@ use glam::{DVec2, DVec3};
 use rayon::prelude::*;
 
 use super::validity::{Crossing, Surfaces, clip_to_box, crossing, margin};
-use crate::geom::Aabb;
+use crate::geom::{Aabb, Plane};
 
 /// Cells along the longest side of a large closed set's box when it
 /// fills its box ([`large_grid`]).
@@ -169,30 +169,24 @@ pub fn beyond(solids: &[Solid], boxes: &[Aabb]) -> Vec<Vec<Beyond>> {
             }
         }
     }
-    let boxes: Vec<(DVec3, DVec3)> = boxes
-        .iter()
-        .filter(|b| !b.is_empty())
-        .map(|b| (b.min.as_dvec3(), b.max.as_dvec3()))
-        .collect();
-    let holds = |&(lo, hi): &(DVec3, DVec3), r: &SolidRect| {
+    let boxes: Vec<&Aabb> = boxes.iter().filter(|b| !b.is_empty()).collect();
+    let holds = |b: &Aabb, r: &SolidRect| {
+        let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
         r.corners.iter().all(|c| c.cmpge(lo).all() && c.cmple(hi).all())
     };
-    for n in normals {
-        // Each box's reach along n: its least and greatest n · p.
-        let reach = |&(lo, hi): &(DVec3, DVec3)| {
-            let (c, h) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
-            let (mid, half) = (n.dot(c), n.abs().dot(h));
-            (mid - half, mid + half)
-        };
-        let mut by_max: Vec<(f64, usize)> = boxes.iter().enumerate().map(|(k, b)| (reach(b).1, k)).collect();
-        let mut by_min: Vec<(f64, usize)> = boxes.iter().enumerate().map(|(k, b)| (reach(b).0, k)).collect();
+    for normal in normals {
+        // Each box's reach along the normal: its least and greatest n · p.
+        let along = Plane { normal, d: 0.0 };
+        let reach: Vec<(f64, f64)> = boxes.iter().map(|b| along.box_range(b)).collect();
+        let mut by_max: Vec<(f64, usize)> = reach.iter().enumerate().map(|(k, r)| (r.1, k)).collect();
+        let mut by_min: Vec<(f64, usize)> = reach.iter().enumerate().map(|(k, r)| (r.0, k)).collect();
         by_max.sort_by(|a, b| b.0.total_cmp(&a.0));
         by_min.sort_by(|a, b| a.0.total_cmp(&b.0));
         for (s, solid) in solids.iter().enumerate() {
-            for (i, r) in solid.rects.iter().enumerate().filter(|(_, r)| r.normal == n) {
+            for (i, r) in solid.rects.iter().enumerate().filter(|(_, r)| r.normal == normal) {
                 // The plane is n · p = −d.
                 let first = |sorted: &[(f64, usize)]| {
-                    sorted.iter().find(|&&(_, k)| !holds(&boxes[k], r)).map(|&(v, _)| v)
+                    sorted.iter().find(|&&(_, k)| !holds(boxes[k], r)).map(|&(v, _)| v)
                 };
                 out[s][i] = Beyond {
                     positive: first(&by_max).is_some_and(|v| v > -r.d),
