@@ -62,8 +62,8 @@ const GRID_THIN: usize = 512;
 const SMALL_GRID: usize = 32;
 
 /// Rectangles kept of a large closed set, those that cover most of it
-/// ([`covering`]): on the CAD body 150 chosen so hide 7 more objects of
-/// the orbit's 240 than the 150 largest did, at the same cull time
+/// ([`covering`]): on the CAD body the 150 so chosen hide 7 more objects
+/// of the orbit's 240 than the 150 largest did, at the same cull time
 /// (docs/ddo.md).
 const LARGE_KEEP: usize = 150;
 
