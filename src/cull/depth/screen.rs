@@ -193,6 +193,28 @@ impl Screen {
         buffer: &mut DepthBuffer,
         scratch: &mut Scratch,
     ) -> Drawn {
+        self.draw_within(
+            corners,
+            plane,
+            thickness,
+            self.everywhere(),
+            buffer,
+            scratch,
+        )
+    }
+
+    /// [`Screen::draw`] writing only cells of `within` (where the caller
+    /// knows a later test may look): writing fewer cells only leaves more
+    /// visible.
+    pub fn draw_within<C: Copy + Into<DVec3>>(
+        &self,
+        corners: &[C],
+        plane: &Plane,
+        thickness: f64,
+        within: CellRect,
+        buffer: &mut DepthBuffer,
+        scratch: &mut Scratch,
+    ) -> Drawn {
         // The plane seen from the eye: n·v = dist for its points v (view space).
         let mut n = DVec3::new(
             plane.normal.dot(self.right),
@@ -232,11 +254,14 @@ impl Screen {
         let z_min = poly.iter().map(|v| v.z).fold(f64::INFINITY, lesser);
         let c = self.cell as f64;
         let cells = CellRect {
-            x0: floor_i64(x_lo / c).max(0) as usize,
-            y0: floor_i64(y_lo / c).max(0) as usize,
-            x1: floor_i64(x_hi / c).min(self.cols as i64 - 1) as usize,
-            y1: floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize,
+            x0: floor_i64(x_lo / c).max(within.x0 as i64) as usize,
+            y0: floor_i64(y_lo / c).max(within.y0 as i64) as usize,
+            x1: floor_i64(x_hi / c).min(within.x1 as i64) as usize,
+            y1: floor_i64(y_hi / c).min(within.y1 as i64) as usize,
         };
+        if cells.x0 > cells.x1 || cells.y0 > cells.y1 {
+            return Drawn::Missed;
+        }
         if buffer.hides(cells, (1.0 / z_min) as f32) {
             return Drawn::Behind;
         }
@@ -320,8 +345,7 @@ impl Screen {
         let f32_margin =
             3.0 * f32::EPSILON as f64 * (1.0 / z_min + 2.0 * self.cols as f64 * step.abs())
                 + f32::MIN_POSITIVE as f64;
-        let row_first = floor_i64(y_lo / c).max(0) as usize;
-        let row_last = floor_i64(y_hi / c).min(self.rows as i64 - 1) as usize;
+        let (row_first, row_last) = (cells.y0, cells.y1);
         // Pixel rows and columns are whole numbers, exact in f64 (and
         // counted as i64: converting an unsigned one costs several steps).
         let last_centre = self.height - 0.5;
@@ -336,10 +360,15 @@ impl Screen {
             scratch.spans.resize(count, (0, 0));
         }
         let spans = &mut scratch.spans[..count];
-        let last_col = (self.cols - 1) as i64 as f64;
+        let last_col = cells.x1 as i64 as f64;
         buffer
             .kernel()
             .spans(left, right, (y_first, c), last_col, spans);
+        if cells.x0 > 0 {
+            for span in spans.iter_mut() {
+                span.0 = span.0.max(cells.x0 as i32);
+            }
+        }
         // Rows wholly outside a level edge: none.
         if !level.is_empty() {
             for (k, span) in spans.iter_mut().enumerate() {
@@ -469,5 +498,108 @@ impl Screen {
             },
             w32,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cull::depth::Kernel;
+    use crate::geom::Camera;
+    use crate::scene::SceneBuilder;
+
+    /// A 64 × 48 view down −z from 10 units above the plane `z = 0`.
+    fn screen() -> Screen {
+        let scene = SceneBuilder::new("empty").finish();
+        let camera = Camera {
+            eye: DVec3::new(0.0, 0.0, 10.0),
+            forward: DVec3::NEG_Z,
+            up: DVec3::Y,
+            aspect: 64.0 / 48.0,
+            viewport: [64, 48],
+            ..Camera::default()
+        };
+        Screen::new(&View::new(camera, &scene).expect("a view"), 1, 100.0)
+    }
+
+    /// The square `[−h, h]²` of the plane `z = 0`.
+    fn square(h: f64) -> [DVec3; 4] {
+        [(-h, -h), (h, -h), (h, h), (-h, h)].map(|(x, y)| DVec3::new(x, y, 0.0))
+    }
+
+    fn written(buffer: &DepthBuffer, screen: &Screen) -> Vec<(usize, usize)> {
+        let (cols, rows) = screen.cells();
+        (0..rows)
+            .flat_map(|y| (0..cols).map(move |x| (x, y)))
+            .filter(|&c| buffer.cell_above(c, 0.0))
+            .collect()
+    }
+
+    #[test]
+    fn a_polygon_drawn_within_cells_writes_those_it_covers_and_no_other() {
+        let screen = screen();
+        let plane = Plane {
+            normal: DVec3::Z,
+            d: 0.0,
+        };
+        let mut scratch = Scratch::default();
+        let (cols, rows) = screen.cells();
+        let mut buffer = DepthBuffer::new(Kernel::detect());
+
+        // A wall filling the view, drawn everywhere, writes every cell.
+        buffer.reset(cols, rows);
+        let wall = square(50.0);
+        assert_eq!(
+            screen.draw(&wall, &plane, 0.0, &mut buffer, &mut scratch),
+            Drawn::Raised
+        );
+        assert_eq!(written(&buffer, &screen).len(), cols * rows);
+
+        // Within a rectangle, it writes exactly that rectangle.
+        buffer.reset(cols, rows);
+        let within = CellRect {
+            x0: 10,
+            y0: 5,
+            x1: 20,
+            y1: 15,
+        };
+        let drawn = screen.draw_within(&wall, &plane, 0.0, within, &mut buffer, &mut scratch);
+        assert_eq!(drawn, Drawn::Raised);
+        let cells = written(&buffer, &screen);
+        assert_eq!(cells.len(), 11 * 11);
+        assert!(
+            cells
+                .iter()
+                .all(|&(x, y)| (10..=20).contains(&x) && (5..=15).contains(&y))
+        );
+
+        // A small square in the middle writes nothing within a corner
+        // it does not reach, and says so.
+        buffer.reset(cols, rows);
+        let corner = CellRect {
+            x0: 0,
+            y0: 0,
+            x1: 5,
+            y1: 5,
+        };
+        let drawn =
+            screen.draw_within(&square(0.5), &plane, 0.0, corner, &mut buffer, &mut scratch);
+        assert_eq!(drawn, Drawn::Missed);
+        assert!(written(&buffer, &screen).is_empty());
+
+        // Within a rectangle it crosses, it writes only the overlap.
+        let right = CellRect {
+            x0: 32,
+            y0: 0,
+            x1: 63,
+            y1: 47,
+        };
+        let drawn = screen.draw_within(&square(0.5), &plane, 0.0, right, &mut buffer, &mut scratch);
+        assert_eq!(drawn, Drawn::Raised);
+        let cells = written(&buffer, &screen);
+        assert!(!cells.is_empty() && cells.iter().all(|&(x, _)| x >= 32));
+        buffer.reset(cols, rows);
+        screen.draw(&square(0.5), &plane, 0.0, &mut buffer, &mut scratch);
+        assert!(written(&buffer, &screen).iter().any(|&(x, _)| x < 32));
     }
 }
