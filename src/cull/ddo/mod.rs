@@ -43,9 +43,10 @@
 //! hidden lies behind what is drawn already and would add nothing. A
 //! rectangle hides only what lies past its plane from the eye, so one
 //! past whose plane no other object's box reaches (the far half of a
-//! closed body with nothing outside it) is not drawn, and a part's
-//! sections stop at the first found behind what is drawn. Drawing less
-//! can only leave more visible. With
+//! closed body with nothing outside it) is not drawn; a large surface's
+//! are drawn only within the screen rectangle of the other objects'
+//! boxes, and of a part's cross-sections only the one the view shows
+//! largest. Drawing less can only leave more visible. With
 //! `traversal=objects` the octree is not walked: the objects in the
 //! frustum, nearest box first, are tested by their boxes against the
 //! solids drawn so far. The depth test needs no order, so the order only
@@ -103,7 +104,7 @@ use super::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
-use super::depth::{DepthBuffer, Drawn, Footprint, Kernel, Scratch, Screen};
+use super::depth::{CellRect, DepthBuffer, Footprint, Kernel, Scratch, Screen};
 use crate::geom::{ALL_PLANES, Aabb, Plane, PlaneMask, Side};
 use super::subtree::frustum_cull_subtree;
 use crate::scene::{BakeCache, Scene};
@@ -214,8 +215,11 @@ pub struct DdoCulling {
     /// more than reading it).
     bounds: Vec<Aabb>,
     /// Solids drawn before anything is tested: the large ones and those
-    /// of several objects (indices into the octree's solids).
-    first_solids: Vec<u32>,
+    /// of several objects (indices into the octree's solids), each with
+    /// the box around every other object's: only on its screen rectangle
+    /// can the solid hide anything tested (a skin's rim, with nothing
+    /// inside behind it, is not drawn).
+    first_solids: Vec<(u32, Aabb)>,
     /// Per object, its own small solids: drawn once it is found visible
     /// (one hidden hides nothing that is not hidden already).
     object_solids: Vec<Vec<u32>>,
@@ -228,6 +232,9 @@ pub struct DdoCulling {
     /// into: a rectangle with nothing beyond it from the eye (the far
     /// half of a closed body with nothing outside it) is not drawn.
     beyond: Vec<Vec<Beyond>>,
+    /// Per solid and rectangle, its area and centre: a part draws the
+    /// one a view shows largest.
+    shown: Vec<Vec<(f64, DVec3)>>,
 }
 
 impl DdoCulling {
@@ -237,20 +244,34 @@ impl DdoCulling {
             root.min.abs().max(root.max().abs()).length()
         });
         let bounds = tree.nodes().iter().map(Node::bounds).collect();
+        let boxes: Vec<Aabb> = scene.objects().iter().map(|o| o.bounds).collect();
         let mut first_solids = Vec::new();
         let mut object_solids = vec![Vec::new(); scene.objects().len()];
         for (k, s) in tree.solids().iter().enumerate() {
             match s.object {
                 Some(o) if !s.large => object_solids[o as usize].push(k as u32),
-                _ => first_solids.push(k as u32),
+                own => {
+                    let mut others = Aabb::EMPTY;
+                    for (o, b) in boxes.iter().enumerate() {
+                        if own != Some(o as u32) {
+                            others.merge(b);
+                        }
+                    }
+                    first_solids.push((k as u32, others));
+                }
             }
         }
         let margin = validity::margin(scene.bounds().extent().max_element() as f64);
-        let boxes: Vec<Aabb> = scene.objects().iter().map(|o| o.bounds).collect();
         let beyond = solid::beyond(tree.solids(), &boxes);
+        let shown = tree
+            .solids()
+            .iter()
+            .map(|s| s.rects.iter().map(|r| (r.area(), r.centre())).collect())
+            .collect();
         DdoCulling {
             boxes,
             beyond,
+            shown,
             scene,
             tree,
             kd,
@@ -262,31 +283,45 @@ impl DdoCulling {
         }
     }
 
-    /// Draws the rectangles of solid `k` when its whole box lies beyond the
-    /// near plane ([`solid`]'s doc says why they hide from such an eye).
-    /// A part's rectangles (its largest cross-sections, largest first)
-    /// stop at the first that lies behind what is drawn: the part is then
-    /// mostly hidden, and its smaller sections seldom hide anything more
-    /// (on the CAD orbit, 3 more objects of 236 for a tenth less time:
-    /// docs/ddo.md).
-    fn draw_solid(&self, k: u32, view: &View, screen: &Screen, canvas: &mut Canvas, floor: f64) {
+    /// Draws solid `k`, within cells `within`, when its whole box lies
+    /// beyond the near plane ([`solid`]'s doc says why it hides from such
+    /// an eye then): a large one's rectangles (its cover, in the order the
+    /// bake chose), a part's one the view shows largest.
+    fn draw_solid(&self, k: u32, within: CellRect, view: &View, screen: &Screen, canvas: &mut Canvas, floor: f64) {
         let s = &self.tree.solids()[k as usize];
         let needed = view.camera().near * (1.0 + NEAR_SLACK) + floor;
         if nearest_depth(view, s.lo, s.hi).partial_cmp(&needed).is_none_or(Ordering::is_lt) {
             return;
         }
-        for (r, beyond) in s.rects.iter().zip(&self.beyond[k as usize]) {
-            if !beyond.from(r, view.eye()) {
-                continue;
-            }
+        let eye = view.eye();
+        let beyond = &self.beyond[k as usize];
+        let draw = |r: &SolidRect, canvas: &mut Canvas| {
             let plane = Plane {
                 normal: r.normal,
                 d: r.d,
             };
-            let drawn = screen.draw(&r.corners, &plane, self.margin, &mut canvas.buffer, &mut canvas.scratch);
-            if drawn == Drawn::Behind && !s.large {
-                return;
+            screen.draw_within(&r.corners, &plane, self.margin, within, &mut canvas.buffer, &mut canvas.scratch);
+        };
+        if s.large {
+            for (r, beyond) in s.rects.iter().zip(beyond) {
+                if beyond.from(r, eye) {
+                    draw(r, canvas);
+                }
             }
+            return;
+        }
+        // Shown area squared: area² · cos², no square root.
+        let mut best = (0.0, None);
+        for ((r, beyond), &(area, centre)) in s.rects.iter().zip(beyond).zip(&self.shown[k as usize]) {
+            let to_eye = eye - centre;
+            let across = area * r.normal.dot(to_eye);
+            let shown = across * across / to_eye.length_squared();
+            if shown > best.0 && beyond.from(r, eye) {
+                best = (shown, Some(r));
+            }
+        }
+        if let Some(r) = best.1 {
+            draw(r, canvas);
         }
     }
 
@@ -310,7 +345,7 @@ impl DdoCulling {
             if !screen_hides(screen, &mut canvas.buffer, &self.boxes[id as usize]) {
                 out.push(id);
                 for &k in &self.object_solids[id as usize] {
-                    self.draw_solid(k, view, screen, canvas, floor);
+                    self.draw_solid(k, screen.everywhere(), view, screen, canvas, floor);
                 }
             }
         }
@@ -463,8 +498,13 @@ impl CullMethod for DdoCulling {
             let screen = Screen::new(view, 1, self.radius);
             let (cols, rows) = screen.cells();
             canvas.buffer.reset(cols, rows);
-            for &k in &self.first_solids {
-                self.draw_solid(k, view, &screen, canvas, projection.floor);
+            for (k, others) in &self.first_solids {
+                let within = match screen.footprint(others) {
+                    Footprint::Nothing => continue,
+                    Footprint::Near => screen.everywhere(),
+                    Footprint::Cells(cells, _) => cells,
+                };
+                self.draw_solid(*k, within, view, &screen, canvas, projection.floor);
             }
             screen
         });
@@ -764,7 +804,7 @@ impl Walk<'_> {
                     self.out.push(id);
                     if let (Some(screen), Some(canvas)) = (&self.screen, &mut self.state.canvas) {
                         for &k in &self.culling.object_solids[id as usize] {
-                            self.culling.draw_solid(k, self.view, screen, canvas, self.projection.floor);
+                            self.culling.draw_solid(k, screen.everywhere(), self.view, screen, canvas, self.projection.floor);
                         }
                     }
                 }
