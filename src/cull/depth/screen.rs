@@ -527,6 +527,10 @@ mod tests {
         [(-h, -h), (h, -h), (h, h), (-h, h)].map(|(x, y)| DVec3::new(x, y, 0.0))
     }
 
+    fn rect(x0: usize, y0: usize, x1: usize, y1: usize) -> CellRect {
+        CellRect { x0, y0, x1, y1 }
+    }
+
     fn written(buffer: &DepthBuffer, screen: &Screen) -> Vec<(usize, usize)> {
         let (cols, rows) = screen.cells();
         (0..rows)
@@ -557,12 +561,7 @@ mod tests {
 
         // Within a rectangle, it writes exactly that rectangle.
         buffer.reset(cols, rows);
-        let within = CellRect {
-            x0: 10,
-            y0: 5,
-            x1: 20,
-            y1: 15,
-        };
+        let within = rect(10, 5, 20, 15);
         let drawn = screen.draw_within(&wall, &plane, 0.0, within, &mut buffer, &mut scratch);
         assert_eq!(drawn, Drawn::Raised);
         let cells = written(&buffer, &screen);
@@ -576,24 +575,14 @@ mod tests {
         // A small square in the middle writes nothing within a corner
         // it does not reach, and says so.
         buffer.reset(cols, rows);
-        let corner = CellRect {
-            x0: 0,
-            y0: 0,
-            x1: 5,
-            y1: 5,
-        };
+        let corner = rect(0, 0, 5, 5);
         let drawn =
             screen.draw_within(&square(0.5), &plane, 0.0, corner, &mut buffer, &mut scratch);
         assert_eq!(drawn, Drawn::Missed);
         assert!(written(&buffer, &screen).is_empty());
 
         // Within a rectangle it crosses, it writes only the overlap.
-        let right = CellRect {
-            x0: 32,
-            y0: 0,
-            x1: 63,
-            y1: 47,
-        };
+        let right = rect(32, 0, 63, 47);
         let drawn = screen.draw_within(&square(0.5), &plane, 0.0, right, &mut buffer, &mut scratch);
         assert_eq!(drawn, Drawn::Raised);
         let cells = written(&buffer, &screen);
