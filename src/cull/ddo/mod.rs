@@ -216,9 +216,10 @@ pub struct DdoCulling {
     bounds: Vec<Aabb>,
     /// Solids drawn before anything is tested: the large ones and those
     /// of several objects (indices into the octree's solids), each with
-    /// the box around every other object's: only on its screen rectangle
-    /// can the solid hide anything tested (a skin's rim, with nothing
-    /// inside behind it, is not drawn).
+    /// the box around every other object's. A solid is drawn only on
+    /// that box's screen rectangle, where every object it can hide lies
+    /// (a skin's rim, with nothing inside behind it, is not drawn); the
+    /// walk's nodes reaching past it are not helped there.
     first_solids: Vec<(u32, Aabb)>,
     /// Per object, its own small solids: drawn once it is found visible
     /// (one hidden hides nothing that is not hidden already).
@@ -234,7 +235,7 @@ pub struct DdoCulling {
     beyond: Vec<Vec<Beyond>>,
     /// Per solid and rectangle, its area and centre: a part draws the
     /// one a view shows largest.
-    shown: Vec<Vec<(f64, DVec3)>>,
+    area_centre: Vec<Vec<(f64, DVec3)>>,
 }
 
 impl DdoCulling {
@@ -263,7 +264,7 @@ impl DdoCulling {
         }
         let margin = validity::margin(scene.bounds().extent().max_element() as f64);
         let beyond = solid::beyond(tree.solids(), &boxes);
-        let shown = tree
+        let area_centre = tree
             .solids()
             .iter()
             .map(|s| s.rects.iter().map(|r| (r.area(), r.centre())).collect())
@@ -271,7 +272,7 @@ impl DdoCulling {
         DdoCulling {
             boxes,
             beyond,
-            shown,
+            area_centre,
             scene,
             tree,
             kd,
@@ -312,7 +313,7 @@ impl DdoCulling {
         }
         // Shown area squared: area² · cos², no square root.
         let mut best = (0.0, None);
-        for ((r, beyond), &(area, centre)) in s.rects.iter().zip(beyond).zip(&self.shown[k as usize]) {
+        for ((r, beyond), &(area, centre)) in s.rects.iter().zip(beyond).zip(&self.area_centre[k as usize]) {
             let to_eye = eye - centre;
             let across = area * r.normal.dot(to_eye);
             let shown = across * across / to_eye.length_squared();
@@ -499,6 +500,9 @@ impl CullMethod for DdoCulling {
             let (cols, rows) = screen.cells();
             canvas.buffer.reset(cols, rows);
             for (k, others) in &self.first_solids {
+                if others.is_empty() {
+                    continue; // no other object for it to hide
+                }
                 let within = match screen.footprint(others) {
                     Footprint::Nothing => continue,
                     Footprint::Near => screen.everywhere(),

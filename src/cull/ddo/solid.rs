@@ -148,8 +148,8 @@ impl Beyond {
 }
 
 /// [`Beyond`] of every rectangle of `solids` against `boxes`, per solid
-/// and rectangle. Rectangles share a few normals (one per searched frame
-/// and sign), so per normal the boxes are sorted once by how far they
+/// and rectangle. Rectangles share a few normals (one per searched
+/// frame), so per normal the boxes are sorted once by how far they
 /// reach along it, and a rectangle looks at the farthest-reaching few
 /// until one does not hold it.
 pub fn beyond(solids: &[Solid], boxes: &[Aabb]) -> Vec<Vec<Beyond>> {

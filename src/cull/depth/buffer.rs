@@ -245,6 +245,11 @@ impl DepthBuffer {
         Some((x0, y0))
     }
 
+    /// The value of cell `(x, y)`: the least inverse depth known there.
+    pub fn cell(&self, (x, y): (usize, usize)) -> f32 {
+        self.cells[y * self.stride + x]
+    }
+
     /// Whether cell `(x, y)` holds a value above `w`.
     pub fn cell_above(&self, (x, y): (usize, usize), w: f32) -> bool {
         self.cells[y * self.stride + x] > w

@@ -71,8 +71,9 @@ pub enum Drawn {
     /// It lies in view, but behind what the buffer holds wherever it
     /// would write.
     Behind,
-    /// It had nothing to draw: off the view, seen edge-on or from within
-    /// its thickness, clipped away by the near plane, or degenerate.
+    /// It had nothing to draw: off the view (or off the cells it may
+    /// write), seen edge-on or from within its thickness, clipped away by
+    /// the near plane, or degenerate.
     Missed,
 }
 
@@ -203,9 +204,12 @@ impl Screen {
         )
     }
 
-    /// [`Screen::draw`] writing only cells of `within` (where the caller
-    /// knows a later test may look): writing fewer cells only leaves more
-    /// visible.
+    /// [`Screen::draw`] writing only cells of `within` (taken within the
+    /// screen; where the caller knows a later test may look): writing
+    /// fewer cells only leaves more visible, and a cell written gets the
+    /// same bound as from a whole draw (its `f32` rounding, which the
+    /// margin covers, may differ by an ulp: each row starts its values
+    /// at its first cell written).
     pub fn draw_within<C: Copy + Into<DVec3>>(
         &self,
         corners: &[C],
@@ -256,8 +260,8 @@ impl Screen {
         let cells = CellRect {
             x0: floor_i64(x_lo / c).max(within.x0 as i64) as usize,
             y0: floor_i64(y_lo / c).max(within.y0 as i64) as usize,
-            x1: floor_i64(x_hi / c).min(within.x1 as i64) as usize,
-            y1: floor_i64(y_hi / c).min(within.y1 as i64) as usize,
+            x1: floor_i64(x_hi / c).min(within.x1.min(self.cols - 1) as i64) as usize,
+            y1: floor_i64(y_hi / c).min(within.y1.min(self.rows - 1) as i64) as usize,
         };
         if cells.x0 > cells.x1 || cells.y0 > cells.y1 {
             return Drawn::Missed;
@@ -572,6 +576,15 @@ mod tests {
                 .all(|&(x, y)| (10..=20).contains(&x) && (5..=15).contains(&y))
         );
 
+        // A wall farther away lies behind it.
+        let far = wall.map(|p| p - DVec3::new(0.0, 0.0, 5.0));
+        let farther = Plane {
+            normal: DVec3::Z,
+            d: 5.0,
+        };
+        let drawn = screen.draw_within(&far, &farther, 0.0, within, &mut buffer, &mut scratch);
+        assert_eq!(drawn, Drawn::Behind);
+
         // A small square in the middle writes nothing within a corner
         // it does not reach, and says so.
         buffer.reset(cols, rows);
@@ -590,5 +603,49 @@ mod tests {
         buffer.reset(cols, rows);
         screen.draw(&square(0.5), &plane, 0.0, &mut buffer, &mut scratch);
         assert!(written(&buffer, &screen).iter().any(|&(x, _)| x < 32));
+    }
+
+    #[test]
+    fn a_tilted_polygon_drawn_within_cells_gives_them_what_a_whole_draw_does() {
+        let screen = screen();
+        // The plane z = 0.3 x: depth changes along every row. From the
+        // eye (0, 0, 10) the ray through column centre X (in −1..1) meets
+        // it at inverse depth (1 + 0.3 X tx) / 10.
+        let normal = DVec3::new(-0.3, 0.0, 1.0).normalize();
+        let plane = Plane { normal, d: 0.0 };
+        let wall = square(50.0).map(|p| DVec3::new(p.x, p.y, 0.3 * p.x));
+        let exact =
+            |x: usize| (1.0 + 0.3 * (2.0 * (x as f64 + 0.5) / 64.0 - 1.0) * screen.tx) / 10.0;
+        let (cols, rows) = screen.cells();
+        let mut scratch = Scratch::default();
+        let mut whole = DepthBuffer::new(Kernel::detect());
+        whole.reset(cols, rows);
+        screen.draw(&wall, &plane, 0.0, &mut whole, &mut scratch);
+        let mut part = DepthBuffer::new(Kernel::detect());
+        part.reset(cols, rows);
+        screen.draw_within(
+            &wall,
+            &plane,
+            0.0,
+            rect(13, 7, 41, 30),
+            &mut part,
+            &mut scratch,
+        );
+        for y in 0..rows {
+            for x in 0..cols {
+                let (w, w_whole) = (part.cell((x, y)), whole.cell((x, y)));
+                if (13..=41).contains(&x) && (7..=30).contains(&y) {
+                    // Written, never nearer than the plane, and what the
+                    // whole draw wrote but for rounding.
+                    assert!(w > 0.0 && (w as f64) <= exact(x), "cell ({x}, {y}): {w}");
+                    assert!(
+                        (w - w_whole).abs() <= 4.0 * f32::EPSILON * w_whole,
+                        "cell ({x}, {y})"
+                    );
+                } else {
+                    assert_eq!(w, 0.0, "cell ({x}, {y})");
+                }
+            }
+        }
     }
 }
