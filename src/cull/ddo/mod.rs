@@ -32,6 +32,9 @@
 //! beyond it. Sampling at pixel centres as truth does closes the seams
 //! between neighbouring faces, of one plane or of several, that the
 //! coordinate-plane maps below leave open; docs/ddo.md measures both.
+//! With `cell=n` the buffer's cells are `n × n` pixels, each written only
+//! where one polygon covers all of its centres: the same argument, fewer
+//! cells to write and test, less hidden (seams open again a cell wide).
 //!
 //! **Solid occluders** ([`solid`], screen map only). The bake also finds
 //! rectangles proved to lie inside closed opaque surfaces, valid from any
@@ -138,7 +141,20 @@ const PLANES: &str = "planes";
 /// objects found visible before it; the octree faces are not drawn.
 const TRAVERSAL: &str = "traversal";
 
-const OPTIONS: [&str; 6] = [REGIONS, MAP, CELLS.key, PLANES, SPLITS.key, TRAVERSAL];
+/// Pixels per side of the screen map's cells: 1 by default. Coarser cells
+/// are fewer to write and test, and hide less: a cell is written only
+/// where one polygon covers all of its pixel centres, so each section
+/// loses a rim and neighbouring skin rectangles leave seams (docs/ddo.md
+/// measures the trade at 1024×768).
+const CELL: Ranged<usize> = Ranged {
+    key: "cell",
+    noun: "a whole number of pixels",
+    default: 1,
+    min: 1,
+    max: 8,
+};
+
+const OPTIONS: [&str; 7] = [REGIONS, MAP, CELLS.key, PLANES, SPLITS.key, TRAVERSAL, CELL.key];
 
 /// Projected depths below this share of the scene's size (plus the eye's
 /// distance from its origin) are not projected: far above the rounding of
@@ -181,6 +197,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
         "map=grid:cells=16",
         "map=exact:splits=2",
         "traversal=objects",
+        "traversal=objects:cell=2",
     ],
     regions: Some("its octree faces are proven occluders from direction regions of single eyes, not shrunk for a ball of eyes, and its occlusion map is drawn on one camera's plane"),
     build,
@@ -392,6 +409,8 @@ pub struct DdoState {
 struct Canvas {
     buffer: DepthBuffer,
     scratch: Scratch,
+    /// Pixels per cell side ([`CELL`]).
+    cell: usize,
 }
 
 impl CullMethod for DdoCulling {
@@ -413,6 +432,7 @@ impl CullMethod for DdoCulling {
         let form = r.choice(MAP, &["screen", "exact", "grid"])?;
         let grid = form == "grid";
         let by_object = r.choice(TRAVERSAL, &["octree", "objects"])? == "objects";
+        let cell = r.ranged(&CELL)?;
         r.finish()?;
         if by_object && form != "screen" {
             return Err(MethodError::InvalidOption {
@@ -420,6 +440,16 @@ impl CullMethod for DdoCulling {
                 option: TRAVERSAL.into(),
                 value: "objects".into(),
                 expected: "octree with map=exact or map=grid: objects are tested on the screen map only".into(),
+            });
+        }
+        if form != "screen"
+            && let Some((_, value)) = options.iter().find(|&(k, _)| k == CELL.key)
+        {
+            return Err(MethodError::InvalidOption {
+                method: "ddo".into(),
+                option: CELL.key.into(),
+                value: value.into(),
+                expected: "nothing with map=exact or map=grid: it sizes the cells of map=screen".into(),
             });
         }
         // The plane maps' own options say nothing to the screen map.
@@ -438,6 +468,7 @@ impl CullMethod for DdoCulling {
         let canvas = (form == "screen").then(|| Canvas {
             buffer: DepthBuffer::new(Kernel::detect()),
             scratch: Scratch::default(),
+            cell,
         });
         let map = || {
             if grid {
@@ -496,7 +527,7 @@ impl CullMethod for DdoCulling {
         }
         state.pending.clear();
         let screen = state.canvas.as_mut().map(|canvas| {
-            let screen = Screen::new(view, 1, self.radius);
+            let screen = Screen::new(view, canvas.cell, self.radius);
             let (cols, rows) = screen.cells();
             canvas.buffer.reset(cols, rows);
             for (k, others) in &self.first_solids {
@@ -1099,7 +1130,7 @@ mod tests {
     fn a_closed_shell_hides_what_it_holds() {
         let method = baked(&boxed_scene(None));
         for eye in [DVec3::new(0.3, 0.2, 5.0), DVec3::new(-4.0, 1.5, 0.7), DVec3::new(3.5, -1.0, 1.5)] {
-            for options in ["", "regions=32", "map=exact", "map=exact:planes=best"] {
+            for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "cell=2", "traversal=objects:cell=3"] {
                 assert_eq!(cull(&method, eye, options), vec![0], "from {eye} with {options:?}");
             }
             // The grid's seams between faces stay open: it only may hide.
@@ -1140,16 +1171,23 @@ mod tests {
     }
 
     #[test]
-    fn the_screen_map_refuses_the_plane_maps_options() {
+    fn the_screen_map_refuses_the_plane_maps_options_and_they_its_cell() {
         let method = baked(&boxed_scene(None));
-        for options in ["planes=best", "cells=16", "splits=1", "map=screen:splits=2"] {
+        let refusal = |options: &str| {
             let mut map = MethodOptions::new();
             for kv in options.split(':') {
                 let (k, v) = kv.split_once('=').expect("key=value");
                 map.insert(k, v);
             }
-            let error = method.new_state(&map).err().expect("refused").to_string();
+            method.new_state(&map).err().expect("refused").to_string()
+        };
+        for options in ["planes=best", "cells=16", "splits=1", "map=screen:splits=2", "map=exact:cell=2", "map=grid:cell=1"] {
+            let error = refusal(options);
             assert!(error.contains("map=screen"), "{options}: {error}");
+        }
+        for options in ["cell=0", "cell=9", "cell=1.5"] {
+            let error = refusal(options);
+            assert!(error.contains("cell"), "{options}: {error}");
         }
     }
 
@@ -1159,7 +1197,7 @@ mod tests {
         // seen through it from straight above.
         let method = baked(&boxed_scene(Some((8, 8))));
         let eye = DVec3::new(0.06, 0.06, 5.0);
-        for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "map=grid"] {
+        for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "map=grid", "cell=2", "traversal=objects:cell=3"] {
             assert_eq!(cull(&method, eye, options), vec![0, 1], "with {options:?}");
         }
         // From the other side the shell is whole.
