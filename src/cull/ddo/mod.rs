@@ -34,7 +34,8 @@
 //! coordinate-plane maps below leave open; docs/ddo.md measures both.
 //! With `cell=n` the buffer's cells are `n × n` pixels, each written only
 //! where one polygon covers all of its centres: the same argument, fewer
-//! cells to write and test, less hidden (seams open again a cell wide).
+//! cells to write and test, usually less hidden (seams open again, up to
+//! a cell wide).
 //!
 //! **Solid occluders** ([`solid`], screen map only). The bake also finds
 //! rectangles proved to lie inside closed opaque surfaces, valid from any
@@ -142,7 +143,7 @@ const PLANES: &str = "planes";
 const TRAVERSAL: &str = "traversal";
 
 /// Pixels per side of the screen map's cells: 1 by default. Coarser cells
-/// are fewer to write and test, and hide less: a cell is written only
+/// are fewer to write and test, and usually hide less: a cell is written only
 /// where one polygon covers all of its pixel centres, so each section
 /// loses a rim and neighbouring skin rectangles leave seams (docs/ddo.md
 /// measures the trade at 1024×768).
@@ -185,8 +186,8 @@ const WIDE_WINDOW: f64 = 64.0;
 /// this share of the near distance (plus the scene-size floor).
 const NEAR_SLACK: f64 = 1e-6;
 
-/// The method's registry entry; the table checks the 32-region masks and a
-/// coarse map too.
+/// The method's registry entry; the table checks the 32-region masks, the
+/// plane maps, the objects traversal and coarser screen cells too.
 pub const ENTRY: MethodEntry = MethodEntry {
     name: "ddo",
     purpose: "directional discretized occluders baked into an octree (Bernardini et al.): dense CAD models",
@@ -405,7 +406,8 @@ pub struct DdoState {
     order: Vec<(f64, u32)>,
 }
 
-/// A depth buffer at pixel centres and the buffers its drawing reuses.
+/// A depth buffer at pixel centres (in cells of `cell × cell` of them)
+/// and the buffers its drawing reuses.
 struct Canvas {
     buffer: DepthBuffer,
     scratch: Scratch,
@@ -442,27 +444,21 @@ impl CullMethod for DdoCulling {
                 expected: "octree with map=exact or map=grid: objects are tested on the screen map only".into(),
             });
         }
-        if form != "screen"
-            && let Some((_, value)) = options.iter().find(|&(k, _)| k == CELL.key)
-        {
-            return Err(MethodError::InvalidOption {
-                method: "ddo".into(),
-                option: CELL.key.into(),
-                value: value.into(),
-                expected: "nothing with map=exact or map=grid: it sizes the cells of map=screen".into(),
-            });
-        }
-        // The plane maps' own options say nothing to the screen map.
-        if form == "screen"
-            && let Some((key, value)) = options
-                .iter()
-                .find(|(k, _)| [PLANES, CELLS.key, SPLITS.key].contains(k))
-        {
+        // Each map's own options say nothing to the others.
+        let (foreign, expected): (&[&str], _) = if form == "screen" {
+            (
+                &[PLANES, CELLS.key, SPLITS.key],
+                "nothing with map=screen: it shapes the coordinate-plane maps of map=exact or map=grid",
+            )
+        } else {
+            (&[CELL.key], "nothing with map=exact or map=grid: it sizes the cells of map=screen")
+        };
+        if let Some((key, value)) = options.iter().find(|(k, _)| foreign.contains(k)) {
             return Err(MethodError::InvalidOption {
                 method: "ddo".into(),
                 option: key.into(),
                 value: value.into(),
-                expected: "nothing with map=screen: it shapes the coordinate-plane maps of map=exact or map=grid".into(),
+                expected: expected.into(),
             });
         }
         let canvas = (form == "screen").then(|| Canvas {
@@ -1105,25 +1101,35 @@ mod tests {
         DdoCulling::new(scene.clone(), bake(scene, params).expect("a bake"), kd)
     }
 
-    fn cull(method: &DdoCulling, eye: DVec3, options: &str) -> Vec<u32> {
-        let scene = &method.scene;
+    /// `a=1:b=2` as options.
+    fn options(text: &str) -> MethodOptions {
+        let mut map = MethodOptions::new();
+        for kv in text.split(':').filter(|s| !s.is_empty()) {
+            let (k, v) = kv.split_once('=').expect("key=value");
+            map.insert(k, v);
+        }
+        map
+    }
+
+    /// The objects found visible from `eye` looking at the origin, and
+    /// the client state's bytes after the cull.
+    fn cull_with_state(method: &DdoCulling, eye: DVec3, options_text: &str) -> (Vec<u32>, usize) {
         let camera = Camera {
             eye,
             forward: -eye,
             ..Camera::default()
         };
-        let view = View::new(camera, scene).expect("a view");
-        let mut options_map = MethodOptions::new();
-        for kv in options.split(':').filter(|s| !s.is_empty()) {
-            let (k, v) = kv.split_once('=').expect("key=value");
-            options_map.insert(k, v);
-        }
-        let mut state = method.new_state(&options_map).expect("options");
+        let view = View::new(camera, &method.scene).expect("a view");
+        let mut state = method.new_state(&options(options_text)).expect("options");
         let mut out = VisibleSet::new();
         CullMethod::cull(method, &view, &mut state, &mut out, &mut Occludees::default())
             .expect("a cull");
         out.finish();
-        out.ids().to_vec()
+        (out.ids().to_vec(), method.state_bytes(&state))
+    }
+
+    fn cull(method: &DdoCulling, eye: DVec3, options: &str) -> Vec<u32> {
+        cull_with_state(method, eye, options).0
     }
 
     #[test]
@@ -1173,22 +1179,37 @@ mod tests {
     #[test]
     fn the_screen_map_refuses_the_plane_maps_options_and_they_its_cell() {
         let method = baked(&boxed_scene(None));
-        let refusal = |options: &str| {
-            let mut map = MethodOptions::new();
-            for kv in options.split(':') {
-                let (k, v) = kv.split_once('=').expect("key=value");
-                map.insert(k, v);
-            }
-            method.new_state(&map).err().expect("refused").to_string()
-        };
-        for options in ["planes=best", "cells=16", "splits=1", "map=screen:splits=2", "map=exact:cell=2", "map=grid:cell=1"] {
-            let error = refusal(options);
-            assert!(error.contains("map=screen"), "{options}: {error}");
+        let refusal = |text: &str| method.new_state(&options(text)).err().expect("refused").to_string();
+        for text in ["planes=best", "cells=16", "splits=1", "map=screen:splits=2"] {
+            let error = refusal(text);
+            assert!(error.contains("nothing with map=screen"), "{text}: {error}");
         }
-        for options in ["cell=0", "cell=9", "cell=1.5"] {
-            let error = refusal(options);
-            assert!(error.contains("cell"), "{options}: {error}");
+        for text in ["map=exact:cell=2", "map=grid:cell=1"] {
+            let error = refusal(text);
+            assert!(error.contains("option 'cell'"), "{text}: {error}");
+            assert!(error.contains("nothing with map=exact or map=grid"), "{text}: {error}");
         }
+        for text in ["cell=0", "cell=9", "cell=1.5"] {
+            let error = refusal(text);
+            assert!(error.contains("from 1 to 8"), "{text}: {error}");
+        }
+    }
+
+    #[test]
+    fn a_coarser_cell_holds_fewer_cells_and_hides_the_same_inside() {
+        // The buffer is sized by the screen's cells: a quarter as many
+        // with cell=2, a 64th with cell=8, each answering the same here.
+        let method = baked(&boxed_scene(None));
+        let eye = DVec3::new(0.3, 0.2, 5.0);
+        let sizes: Vec<usize> = ["", "cell=2", "cell=8"]
+            .iter()
+            .map(|text| {
+                let (ids, bytes) = cull_with_state(&method, eye, text);
+                assert_eq!(ids, vec![0], "{text:?}");
+                bytes
+            })
+            .collect();
+        assert!(sizes[0] > sizes[1] && sizes[1] > sizes[2], "{sizes:?}");
     }
 
     #[test]
