@@ -20,7 +20,7 @@ use crate::scene::{BakeCache, Scene};
 /// must change this text, so old files are rebuilt, never misread.
 fn params_text(params: OctreeParams) -> String {
     format!(
-        "ddo v6 leaf={} depth={} regions=64>32 angle={} clip={}",
+        "ddo v7 leaf={} depth={} regions=64>32 angle={} clip={}",
         params.leaf_triangles,
         params.max_depth,
         super::regions::MAX_ANGLE_DEG,

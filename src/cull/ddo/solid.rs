@@ -468,18 +468,20 @@ fn inside_share(triangles: &[[DVec3; 3]], tris: &[u32], lo: DVec3, hi: DVec3) ->
 
 /// `rects` (largest first) less each one that mostly lies over an earlier
 /// one of a near parallel plane: seen from anywhere but edge-on, those two
-/// cover nearly the same rays.
-fn distinct(mut rects: Vec<(f64, DVec2, DVec2)>, cell: f64) -> Vec<(f64, DVec2, DVec2)> {
+/// cover nearly the same rays. Each is `(plane, [grown lo, grown hi, lo,
+/// hi])` ([`largest_rects`]): sorted and compared as found, since a grown
+/// rectangle reaches over the neighbours it was found beside.
+fn distinct(mut rects: Vec<(f64, [DVec2; 4])>, cell: f64) -> Vec<(f64, [DVec2; 4])> {
     let reach = REACH * cell;
-    let area = |r: &(f64, DVec2, DVec2)| (r.2 - r.1).x * (r.2 - r.1).y;
+    let area = |r: &(f64, [DVec2; 4])| (r.1[3] - r.1[2]).x * (r.1[3] - r.1[2]).y;
     rects.sort_by(|a, b| area(b).total_cmp(&area(a)));
-    let mut kept: Vec<(f64, DVec2, DVec2)> = Vec::new();
+    let mut kept: Vec<(f64, [DVec2; 4])> = Vec::new();
     for r in rects {
         let covered = kept.iter().any(|k| {
             if (k.0 - r.0).abs() > reach {
                 return false;
             }
-            let d = (r.2.min(k.2) - r.1.max(k.1)).max(DVec2::ZERO);
+            let d = (r.1[3].min(k.1[3]) - r.1[2].max(k.1[2])).max(DVec2::ZERO);
             d.x * d.y >= OVERLAP * area(&r)
         });
         if !covered {
@@ -570,7 +572,7 @@ fn rects_across(surfaces: &Surfaces, tris: &[u32], frame: Frame, cell: f64, m: f
         }
     }
     let beyond = hi.z + cell;
-    let found: Vec<(f64, DVec2, DVec2)> = (0..planes)
+    let found: Vec<(f64, [DVec2; 4])> = (0..planes)
         .into_par_iter()
         .flat_map_iter(|k| {
             let w = plane_w(k);
@@ -598,12 +600,12 @@ fn rects_across(surfaces: &Surfaces, tris: &[u32], frame: Frame, cell: f64, m: f
                 Some(odd)
             };
             let inside = inside_cells(&local, &on_plane[k], &grid, w, m, parity);
-            largest_rects(inside, &grid).into_iter().map(move |(a, b)| (w, a, b))
+            largest_rects(inside, &grid).into_iter().map(move |r| (w, r))
         })
         .collect();
     distinct(found, cell)
         .into_iter()
-        .map(|(w, a, b)| SolidRect {
+        .map(|(w, [a, b, ..])| SolidRect {
             corners: [a, DVec2::new(b.x, a.y), b, DVec2::new(a.x, b.y)].map(|c| frame.world(c.extend(w))),
             normal: frame.n,
             d: -w,
@@ -696,10 +698,17 @@ fn inside_cells(
     inside
 }
 
-/// Rectangles of `inside` cells, largest first, each taking cells no
-/// earlier one took, while they have [`MIN_CELLS`]: as `(lo, hi)` corners.
-fn largest_rects(mut free: Vec<bool>, grid: &Grid) -> Vec<(DVec2, DVec2)> {
+/// Rectangles of `inside` cells, largest first, each found among cells
+/// no earlier one took, while they have [`MIN_CELLS`], then grown over
+/// `inside` cells as far as they go: as `(lo, hi)` corners, grown and as
+/// found. Grown, neighbours overlap where they met side by side: a cell
+/// of the screen map on their seam is then covered whole by one of them,
+/// where it was by neither (every `inside` cell is proved inside, so
+/// the grown rectangle is too).
+fn largest_rects(inside: Vec<bool>, grid: &Grid) -> Vec<[DVec2; 4]> {
     let (nu, nv) = (grid.nu, grid.nv);
+    let counts = CellCounts::new(&inside, nu, nv);
+    let mut free = inside;
     let mut out = Vec::new();
     let mut heights = vec![0usize; nv];
     let mut stack: Vec<(usize, usize)> = Vec::new();
@@ -732,18 +741,80 @@ fn largest_rects(mut free: Vec<bool>, grid: &Grid) -> Vec<(DVec2, DVec2)> {
                 }
             }
         }
-        let (area, [i0, i1, j0, j1]) = best;
+        let (area, found) = best;
         if area < MIN_CELLS {
             break;
         }
+        let [i0, i1, j0, j1] = found;
         for i in i0..=i1 {
             for j in j0..=j1 {
                 free[i * nv + j] = false;
             }
         }
-        out.push((grid.at(i0, j0), grid.at(i1 + 1, j1 + 1)));
+        let [g0, g1, h0, h1] = grown(&counts, nu, nv, found);
+        out.push([
+            grid.at(g0, h0),
+            grid.at(g1 + 1, h1 + 1),
+            grid.at(i0, j0),
+            grid.at(i1 + 1, j1 + 1),
+        ]);
     }
     out
+}
+
+/// Counts of cells in rectangles of a grid, each in four look-ups: a
+/// summed-area table.
+struct CellCounts {
+    nv: usize,
+    sums: Vec<u32>,
+}
+
+impl CellCounts {
+    /// Over the `nu × nv` cells where `set` (row `i` at `i * nv`).
+    fn new(set: &[bool], nu: usize, nv: usize) -> CellCounts {
+        let w = nv + 1;
+        let mut sums = vec![0u32; (nu + 1) * w];
+        for i in 0..nu {
+            let mut row = 0;
+            for j in 0..nv {
+                row += set[i * nv + j] as u32;
+                sums[(i + 1) * w + j + 1] = sums[i * w + j + 1] + row;
+            }
+        }
+        CellCounts { nv, sums }
+    }
+
+    /// Whether every cell of `[i0, i1, j0, j1]` (inclusive) is set.
+    fn all(&self, [i0, i1, j0, j1]: [usize; 4]) -> bool {
+        let w = self.nv + 1;
+        let s = |i: usize, j: usize| self.sums[i * w + j];
+        let count = s(i1 + 1, j1 + 1) + s(i0, j0) - s(i0, j1 + 1) - s(i1 + 1, j0);
+        count as usize == (i1 + 1 - i0) * (j1 + 1 - j0)
+    }
+}
+
+/// The rectangle of cells `[i0, i1, j0, j1]` (inclusive) grown a row or
+/// column at a time on each side while all of the new one is among
+/// `inside`'s cells (`nu × nv` of them).
+fn grown(inside: &CellCounts, nu: usize, nv: usize, [mut i0, mut i1, mut j0, mut j1]: [usize; 4]) -> [usize; 4] {
+    loop {
+        let before = [i0, i1, j0, j1];
+        if i0 > 0 && inside.all([i0 - 1, i0 - 1, j0, j1]) {
+            i0 -= 1;
+        }
+        if i1 + 1 < nu && inside.all([i1 + 1, i1 + 1, j0, j1]) {
+            i1 += 1;
+        }
+        if j0 > 0 && inside.all([i0, i1, j0 - 1, j0 - 1]) {
+            j0 -= 1;
+        }
+        if j1 + 1 < nv && inside.all([i0, i1, j1 + 1, j1 + 1]) {
+            j1 += 1;
+        }
+        if [i0, i1, j0, j1] == before {
+            return before;
+        }
+    }
 }
 
 #[cfg(test)]
@@ -966,5 +1037,81 @@ mod tests {
         // Too far under the surface, a rectangle covers none of it.
         let deep = flat(0.0, 2.0, 0.0, 1.0, -1.0);
         assert!(covering(vec![deep], &tris, &ids, 0.05, 2).is_empty());
+    }
+
+    /// A grid of unit cells, `n` a side.
+    fn unit_grid(n: usize) -> Grid {
+        Grid {
+            origin: DVec2::ZERO,
+            cell: 1.0,
+            nu: n,
+            nv: n,
+        }
+    }
+
+    /// Per cell `(i, j)` of an `n × n` grid (row `i` at `i * n`), whether
+    /// `set` says so.
+    fn cells_where(n: usize, set: impl Fn(usize, usize) -> bool) -> Vec<bool> {
+        (0..n * n).map(|c| set(c / n, c % n)).collect()
+    }
+
+    /// Cells `(i, j)` of rectangle `[lo, hi]` on a unit grid.
+    fn cells_of([lo, hi]: [DVec2; 2]) -> impl Iterator<Item = (usize, usize)> {
+        let (i, j) = (lo.x as usize..hi.x as usize, lo.y as usize..hi.y as usize);
+        i.flat_map(move |i| j.clone().map(move |j| (i, j)))
+    }
+
+    #[test]
+    fn rectangles_found_side_by_side_grow_over_each_other_and_stay_inside() {
+        // A square ring two cells wide, as a thin shell's cross-section
+        // shows: two long sides are found first, then the short ones
+        // between them, which grow over the corners.
+        let n = 16;
+        let inside = cells_where(n, |i, j| i < 2 || i >= n - 2 || j < 2 || j >= n - 2);
+        let rects = largest_rects(inside.clone(), &unit_grid(n));
+        assert_eq!(rects.len(), 4);
+        let mut cover = vec![0; n * n];
+        for [a, b, fa, fb] in &rects {
+            // Grown over inside cells only, around what was found.
+            assert!(a.cmple(*fa).all() && fb.cmple(*b).all(), "{rects:?}");
+            for (i, j) in cells_of([*a, *b]) {
+                assert!(inside[i * n + j], "({i}, {j}) of {a}–{b} is not inside");
+                cover[i * n + j] += 1;
+            }
+            // Every side spans the ring's whole length.
+            let size = *b - *a;
+            assert_eq!(size.max_element(), n as f64, "{a}–{b}");
+        }
+        // The corners, where the found ones only met, are covered twice.
+        for (i, j) in [(0, 0), (1, 1), (0, n - 1), (n - 1, 0), (n - 2, n - 2)] {
+            assert_eq!(cover[i * n + j], 2, "({i}, {j})");
+        }
+        assert!((0..n * n).all(|c| inside[c] == (cover[c] > 0)));
+    }
+
+    #[test]
+    fn a_grown_rectangle_stops_where_any_cell_of_a_new_side_is_outside() {
+        // An L: a 6×3 foot and a 3-wide upright to row 8. From a cell of
+        // the upright, the rectangle grows up and down the upright, not
+        // into the foot past its width, and no side can grow further.
+        let n = 10;
+        let inside = cells_where(n, |i, j| (i < 6 && j < 3) || (i < 3 && j < 9));
+        let counts = CellCounts::new(&inside, n, n);
+        assert_eq!(grown(&counts, n, n, [1, 1, 5, 5]), [0, 2, 0, 8]);
+        assert_eq!(grown(&counts, n, n, [4, 4, 1, 1]), [0, 5, 0, 2]);
+        assert!(counts.all([0, 5, 0, 2]) && counts.all([0, 2, 0, 8]));
+        assert!(!counts.all([0, 3, 0, 3]) && !counts.all([6, 6, 0, 0]));
+    }
+
+    #[test]
+    fn distinct_compares_rectangles_as_found_not_as_grown() {
+        // Two found side by side, each grown over the other: both stay.
+        let (a, b) = (DVec2::ZERO, DVec2::new(4.0, 4.0));
+        let lower = (0.0, [a, b, a, DVec2::new(4.0, 2.0)]);
+        let upper = (0.0, [a, b, DVec2::new(0.0, 2.0), b]);
+        assert_eq!(distinct(vec![lower, upper], 1.0).len(), 2);
+        // One found mostly over another of a near plane is dropped.
+        let over = (1.0, [a, b, DVec2::new(0.0, 0.5), DVec2::new(4.0, 2.0)]);
+        assert_eq!(distinct(vec![lower, over], 1.0), vec![lower]);
     }
 }
