@@ -466,22 +466,25 @@ fn inside_share(triangles: &[[DVec3; 3]], tris: &[u32], lo: DVec3, hi: DVec3) ->
     inside / (lines as f64 * size.z)
 }
 
-/// `rects` (largest first) less each one that mostly lies over an earlier
-/// one of a near parallel plane: seen from anywhere but edge-on, those two
-/// cover nearly the same rays. Each is `(plane, [grown lo, grown hi, lo,
-/// hi])` ([`largest_rects`]): sorted and compared as found, since a grown
+/// `rects` less each one that mostly lies over a larger one of a near
+/// parallel plane: seen from anywhere but edge-on, those two cover nearly
+/// the same rays. Sorted and compared as found, not as grown: a grown
 /// rectangle reaches over the neighbours it was found beside.
-fn distinct(mut rects: Vec<(f64, [DVec2; 4])>, cell: f64) -> Vec<(f64, [DVec2; 4])> {
+fn distinct(mut rects: Vec<(f64, Found)>, cell: f64) -> Vec<(f64, Found)> {
     let reach = REACH * cell;
-    let area = |r: &(f64, [DVec2; 4])| (r.1[3] - r.1[2]).x * (r.1[3] - r.1[2]).y;
+    let area = |r: &(f64, Found)| {
+        let d = r.1.found[1] - r.1.found[0];
+        d.x * d.y
+    };
     rects.sort_by(|a, b| area(b).total_cmp(&area(a)));
-    let mut kept: Vec<(f64, [DVec2; 4])> = Vec::new();
+    let mut kept: Vec<(f64, Found)> = Vec::new();
     for r in rects {
         let covered = kept.iter().any(|k| {
             if (k.0 - r.0).abs() > reach {
                 return false;
             }
-            let d = (r.1[3].min(k.1[3]) - r.1[2].max(k.1[2])).max(DVec2::ZERO);
+            let [lo, hi] = r.1.found;
+            let d = (hi.min(k.1.found[1]) - lo.max(k.1.found[0])).max(DVec2::ZERO);
             d.x * d.y >= OVERLAP * area(&r)
         });
         if !covered {
@@ -489,6 +492,14 @@ fn distinct(mut rects: Vec<(f64, [DVec2; 4])>, cell: f64) -> Vec<(f64, [DVec2; 4
         }
     }
     kept
+}
+
+/// A rectangle of a plane's inside cells as [`largest_rects`] found it
+/// and as it grew, each as its low and high corners.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Found {
+    found: [DVec2; 2],
+    grown: [DVec2; 2],
 }
 
 /// The cells of one plane.
@@ -572,7 +583,7 @@ fn rects_across(surfaces: &Surfaces, tris: &[u32], frame: Frame, cell: f64, m: f
         }
     }
     let beyond = hi.z + cell;
-    let found: Vec<(f64, [DVec2; 4])> = (0..planes)
+    let found: Vec<(f64, Found)> = (0..planes)
         .into_par_iter()
         .flat_map_iter(|k| {
             let w = plane_w(k);
@@ -605,7 +616,7 @@ fn rects_across(surfaces: &Surfaces, tris: &[u32], frame: Frame, cell: f64, m: f
         .collect();
     distinct(found, cell)
         .into_iter()
-        .map(|(w, [a, b, ..])| SolidRect {
+        .map(|(w, Found { grown: [a, b], .. })| SolidRect {
             corners: [a, DVec2::new(b.x, a.y), b, DVec2::new(a.x, b.y)].map(|c| frame.world(c.extend(w))),
             normal: frame.n,
             d: -w,
@@ -700,12 +711,12 @@ fn inside_cells(
 
 /// Rectangles of `inside` cells, largest first, each found among cells
 /// no earlier one took, while they have [`MIN_CELLS`], then grown over
-/// `inside` cells as far as they go: as `(lo, hi)` corners, grown and as
-/// found. Grown, neighbours overlap where they met side by side: a cell
-/// of the screen map on their seam is then covered whole by one of them,
-/// where it was by neither (every `inside` cell is proved inside, so
-/// the grown rectangle is too).
-fn largest_rects(inside: Vec<bool>, grid: &Grid) -> Vec<[DVec2; 4]> {
+/// `inside` cells as far as they go. Grown, neighbours found side by side
+/// overlap where inside cells reach past their seam (where one's side
+/// lies along the other's, always): a cell of the screen map on the seam
+/// is then covered whole by one of them, where it was by neither. Every
+/// `inside` cell is proved inside, so the grown rectangle is too.
+fn largest_rects(inside: Vec<bool>, grid: &Grid) -> Vec<Found> {
     let (nu, nv) = (grid.nu, grid.nv);
     let counts = CellCounts::new(&inside, nu, nv);
     let mut free = inside;
@@ -751,13 +762,11 @@ fn largest_rects(inside: Vec<bool>, grid: &Grid) -> Vec<[DVec2; 4]> {
                 free[i * nv + j] = false;
             }
         }
-        let [g0, g1, h0, h1] = grown(&counts, nu, nv, found);
-        out.push([
-            grid.at(g0, h0),
-            grid.at(g1 + 1, h1 + 1),
-            grid.at(i0, j0),
-            grid.at(i1 + 1, j1 + 1),
-        ]);
+        let [g0, g1, h0, h1] = grown(&counts, found);
+        out.push(Found {
+            found: [grid.at(i0, j0), grid.at(i1 + 1, j1 + 1)],
+            grown: [grid.at(g0, h0), grid.at(g1 + 1, h1 + 1)],
+        });
     }
     out
 }
@@ -765,6 +774,7 @@ fn largest_rects(inside: Vec<bool>, grid: &Grid) -> Vec<[DVec2; 4]> {
 /// Counts of cells in rectangles of a grid, each in four look-ups: a
 /// summed-area table.
 struct CellCounts {
+    nu: usize,
     nv: usize,
     sums: Vec<u32>,
 }
@@ -781,7 +791,7 @@ impl CellCounts {
                 sums[(i + 1) * w + j + 1] = sums[i * w + j + 1] + row;
             }
         }
-        CellCounts { nv, sums }
+        CellCounts { nu, nv, sums }
     }
 
     /// Whether every cell of `[i0, i1, j0, j1]` (inclusive) is set.
@@ -794,9 +804,10 @@ impl CellCounts {
 }
 
 /// The rectangle of cells `[i0, i1, j0, j1]` (inclusive) grown a row or
-/// column at a time on each side while all of the new one is among
-/// `inside`'s cells (`nu × nv` of them).
-fn grown(inside: &CellCounts, nu: usize, nv: usize, [mut i0, mut i1, mut j0, mut j1]: [usize; 4]) -> [usize; 4] {
+/// column at a time on each side while all of the new one is among the
+/// cells `inside` counts.
+fn grown(inside: &CellCounts, [mut i0, mut i1, mut j0, mut j1]: [usize; 4]) -> [usize; 4] {
+    let (nu, nv) = (inside.nu, inside.nv);
     loop {
         let before = [i0, i1, j0, j1];
         if i0 > 0 && inside.all([i0 - 1, i0 - 1, j0, j1]) {
@@ -1071,15 +1082,19 @@ mod tests {
         let rects = largest_rects(inside.clone(), &unit_grid(n));
         assert_eq!(rects.len(), 4);
         let mut cover = vec![0; n * n];
-        for [a, b, fa, fb] in &rects {
+        for &Found {
+            found: [fa, fb],
+            grown: [a, b],
+        } in &rects
+        {
             // Grown over inside cells only, around what was found.
-            assert!(a.cmple(*fa).all() && fb.cmple(*b).all(), "{rects:?}");
-            for (i, j) in cells_of([*a, *b]) {
+            assert!(a.cmple(fa).all() && fb.cmple(b).all(), "{rects:?}");
+            for (i, j) in cells_of([a, b]) {
                 assert!(inside[i * n + j], "({i}, {j}) of {a}–{b} is not inside");
                 cover[i * n + j] += 1;
             }
             // Every side spans the ring's whole length.
-            let size = *b - *a;
+            let size = b - a;
             assert_eq!(size.max_element(), n as f64, "{a}–{b}");
         }
         // The corners, where the found ones only met, are covered twice.
@@ -1097,21 +1112,26 @@ mod tests {
         let n = 10;
         let inside = cells_where(n, |i, j| (i < 6 && j < 3) || (i < 3 && j < 9));
         let counts = CellCounts::new(&inside, n, n);
-        assert_eq!(grown(&counts, n, n, [1, 1, 5, 5]), [0, 2, 0, 8]);
-        assert_eq!(grown(&counts, n, n, [4, 4, 1, 1]), [0, 5, 0, 2]);
+        assert_eq!(grown(&counts, [1, 1, 5, 5]), [0, 2, 0, 8]);
+        assert_eq!(grown(&counts, [4, 4, 1, 1]), [0, 5, 0, 2]);
         assert!(counts.all([0, 5, 0, 2]) && counts.all([0, 2, 0, 8]));
         assert!(!counts.all([0, 3, 0, 3]) && !counts.all([6, 6, 0, 0]));
     }
 
     #[test]
     fn distinct_compares_rectangles_as_found_not_as_grown() {
+        let v = |x: f64, y: f64| DVec2::new(x, y);
+        let rect = |plane: f64, found: [DVec2; 2], grown: [DVec2; 2]| (plane, Found { found, grown });
         // Two found side by side, each grown over the other: both stay.
-        let (a, b) = (DVec2::ZERO, DVec2::new(4.0, 4.0));
-        let lower = (0.0, [a, b, a, DVec2::new(4.0, 2.0)]);
-        let upper = (0.0, [a, b, DVec2::new(0.0, 2.0), b]);
+        let lower = rect(0.0, [v(0.0, 0.0), v(4.0, 2.0)], [v(0.0, 0.0), v(4.0, 4.0)]);
+        let upper = rect(0.0, [v(0.0, 2.0), v(4.0, 4.0)], [v(0.0, 0.0), v(4.0, 4.0)]);
         assert_eq!(distinct(vec![lower, upper], 1.0).len(), 2);
-        // One found mostly over another of a near plane is dropped.
-        let over = (1.0, [a, b, DVec2::new(0.0, 0.5), DVec2::new(4.0, 2.0)]);
-        assert_eq!(distinct(vec![lower, over], 1.0), vec![lower]);
+        // One found mostly over another of a near plane is dropped, though
+        // grown it would reach mostly past it.
+        let over = rect(1.0, [v(0.0, 0.5), v(4.0, 2.0)], [v(0.0, 0.5), v(4.0, 12.0)]);
+        assert_eq!(distinct(vec![over, lower], 1.0), vec![lower]);
+        // Farther than the reach, it stays.
+        let far = rect(5.0, over.1.found, over.1.grown);
+        assert_eq!(distinct(vec![far, lower], 1.0), vec![lower, far]);
     }
 }
