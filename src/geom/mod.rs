@@ -20,4 +20,4 @@ pub use frustum::{ALL_PLANES, Frustum, PlaneMask};
 pub use plane::{Plane, Side};
 pub use polygon::{ConvexPolygon, Split};
 pub use region::{MAX_RADIUS, MAX_WIDENED, Region};
-pub use round::{ceil_i64, floor_i64, greater, lesser};
+pub use round::{ceil_i64, floor_i64, greater, lesser, ordered_bits};

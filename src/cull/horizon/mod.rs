@@ -79,7 +79,7 @@ use crate::cull::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
-use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side, greater, lesser};
+use crate::geom::{ALL_PLANES, Aabb, PlaneMask, Side, greater, lesser, ordered_bits};
 use crate::scene::Scene;
 use crate::spatial::QuadTree;
 
@@ -295,13 +295,9 @@ impl Event {
     /// the others); unused for the rest: objects are frustum-tested when
     /// pushed.
     fn new(depth: f64, kind: Kind, index: u32, planes: PlaneMask) -> Event {
-        // `total_cmp`'s own mapping of a float to an ordered integer, moved
-        // to unsigned.
-        let bits = depth.to_bits() as i64;
-        let ordered = bits ^ (((bits >> 63) as u64) >> 1) as i64;
         Event {
             key: (
-                (ordered as u64) ^ (1 << 63),
+                ordered_bits(depth),
                 ((kind as u64) << 40) | (u64::from(index) << 8) | u64::from(planes),
             ),
         }
