@@ -109,7 +109,7 @@ use super::{
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
 use super::depth::{CellRect, DepthBuffer, Footprint, Kernel, Scratch, Screen};
-use crate::geom::{ALL_PLANES, Aabb, Plane, PlaneMask, Side};
+use crate::geom::{ALL_PLANES, Aabb, Plane, PlaneMask, Side, ordered_bits};
 use super::subtree::frustum_cull_subtree;
 use crate::scene::{BakeCache, Scene};
 use crate::spatial::KdTree;
@@ -251,9 +251,9 @@ pub struct DdoCulling {
     /// into: a rectangle with nothing beyond it from the eye (the far
     /// half of a closed body with nothing outside it) is not drawn.
     beyond: Vec<Vec<Beyond>>,
-    /// Per solid and rectangle, its area and centre: a part draws the
-    /// one a view shows largest.
-    area_centre: Vec<Vec<(f64, DVec3)>>,
+    /// Per solid, its rectangles' [`Shown`], largest first: a part draws
+    /// the one a view shows largest.
+    shown: Vec<Vec<Shown>>,
 }
 
 impl DdoCulling {
@@ -282,15 +282,11 @@ impl DdoCulling {
         }
         let margin = validity::margin(scene.bounds().extent().max_element() as f64);
         let beyond = solid::beyond(tree.solids(), &boxes);
-        let area_centre = tree
-            .solids()
-            .iter()
-            .map(|s| s.rects.iter().map(|r| (r.area(), r.centre())).collect())
-            .collect();
+        let shown = tree.solids().iter().map(|s| Shown::largest_first(&s.rects)).collect();
         DdoCulling {
             boxes,
             beyond,
-            area_centre,
+            shown,
             scene,
             tree,
             kd,
@@ -329,17 +325,7 @@ impl DdoCulling {
             }
             return;
         }
-        // Shown area squared: area² · cos², no square root.
-        let mut best = (0.0, None);
-        for ((r, beyond), &(area, centre)) in s.rects.iter().zip(beyond).zip(&self.area_centre[k as usize]) {
-            let to_eye = eye - centre;
-            let across = area * r.normal.dot(to_eye);
-            let shown = across * across / to_eye.length_squared();
-            if shown > best.0 && beyond.from(r, eye) {
-                best = (shown, Some(r));
-            }
-        }
-        if let Some(r) = best.1 {
+        if let Some(r) = Shown::largest_seen(&self.shown[k as usize], &s.rects, beyond, eye) {
             draw(r, canvas);
         }
     }
@@ -356,11 +342,12 @@ impl DdoCulling {
         state.order.clear();
         for &id in state.in_frustum.ids() {
             let b = &self.boxes[id as usize];
-            state.order.push((nearest_depth(view, b.min.as_dvec3(), b.max.as_dvec3()), id));
+            let depth = nearest_depth(view, b.min.as_dvec3(), b.max.as_dvec3());
+            state.order.push((ordered_bits(depth) & !u64::from(u32::MAX)) | u64::from(id));
         }
-        state.order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        state.order.sort_unstable();
         let canvas = state.canvas.as_mut().expect("objects are tested on the screen map");
-        for &(_, id) in &state.order {
+        for id in state.order.iter().map(|&key| key as u32) {
             if !screen_hides(screen, &mut canvas.buffer, &self.boxes[id as usize]) {
                 out.push(id);
                 for &k in &self.object_solids[id as usize] {
@@ -377,6 +364,63 @@ impl DdoCulling {
     /// The octree and its masks.
     pub fn octree(&self) -> &Octree {
         &self.tree
+    }
+}
+
+/// What a view can show of a solid's rectangle, for choosing a part's
+/// largest on screen.
+#[derive(Clone, Copy, Debug)]
+struct Shown {
+    /// Its index among the solid's rectangles.
+    rect: u32,
+    area: f64,
+    centre: DVec3,
+    /// The most any eye sees of it, as the choice measures it (shown
+    /// area squared): `(area · |normal|)²`.
+    most: f64,
+}
+
+impl Shown {
+    /// Of each of `rects`, the largest first.
+    fn largest_first(rects: &[SolidRect]) -> Vec<Shown> {
+        let mut shown: Vec<Shown> = rects
+            .iter()
+            .enumerate()
+            .map(|(k, r)| {
+                let area = r.area();
+                Shown {
+                    rect: k as u32,
+                    area,
+                    centre: r.centre(),
+                    most: (area * r.normal.length()).powi(2),
+                }
+            })
+            .collect();
+        shown.sort_by(|a, b| b.most.total_cmp(&a.most).then(a.rect.cmp(&b.rect)));
+        shown
+    }
+
+    /// Of `rects` (with their `shown`, largest first, and [`Beyond`]),
+    /// the one `eye` sees largest among those with something beyond
+    /// them from it: by shown area squared, `area² · cos²`, no square
+    /// root.
+    fn largest_seen<'a>(shown: &[Shown], rects: &'a [SolidRect], beyond: &[Beyond], eye: DVec3) -> Option<&'a SolidRect> {
+        let mut best = (0.0, None);
+        for shown in shown {
+            // None shows more than its whole area: once the largest left
+            // are smaller than the best seen, none of them can beat it.
+            if shown.most <= best.0 {
+                break;
+            }
+            let r = &rects[shown.rect as usize];
+            let to_eye = eye - shown.centre;
+            let across = shown.area * r.normal.dot(to_eye);
+            let seen = across * across / to_eye.length_squared();
+            if seen > best.0 && beyond[shown.rect as usize].from(r, eye) {
+                best = (seen, Some(r));
+            }
+        }
+        best.1
     }
 }
 
@@ -401,9 +445,11 @@ pub struct DdoState {
     /// `traversal=objects`.
     by_object: bool,
     /// With `traversal=objects`: the objects in the frustum, and those
-    /// with their nearest depths, sorted each frame.
+    /// nearest first, as sort keys: the top half of the [`ordered_bits`]
+    /// of the box's nearest depth (a millionth of it: nearer ties only
+    /// decide how much is hidden), the object below.
     in_frustum: VisibleSet,
-    order: Vec<(f64, u32)>,
+    order: Vec<u64>,
 }
 
 /// A depth buffer at pixel centres (in cells of `cell × cell` of them)
@@ -498,7 +544,7 @@ impl CullMethod for DdoCulling {
             + state.seen.capacity() * 4
             + state.pending.capacity() * std::mem::size_of::<(usize, Rect)>()
             + state.canvas.as_ref().map_or(0, |c| c.buffer.heap_bytes())
-            + state.order.capacity() * std::mem::size_of::<(f64, u32)>()
+            + state.order.capacity() * 8
             + state.in_frustum.heap_bytes()
     }
 
@@ -1223,5 +1269,57 @@ mod tests {
         }
         // From the other side the shell is whole.
         assert_eq!(cull(&method, DVec3::new(0.06, 0.06, -5.0), ""), vec![0]);
+    }
+
+    #[test]
+    fn a_part_draws_the_rectangle_it_shows_largest_as_if_all_were_looked_at() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(15);
+        for _ in 0..300 {
+            // Rectangles on the three axes' planes, of all sizes, some with
+            // nothing beyond them on one side or the other.
+            let rects: Vec<SolidRect> = (0..rng.random_range(1..24))
+                .map(|_| {
+                    let axis = rng.random_range(0..3);
+                    let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                    let mut c0 = DVec3::ZERO;
+                    for a in 0..3 {
+                        c0[a] = rng.random_range(-1.0..1.0);
+                    }
+                    let (mut du, mut dv) = (DVec3::ZERO, DVec3::ZERO);
+                    du[u] = rng.random_range(0.01..2.0);
+                    dv[v] = rng.random_range(0.01..2.0);
+                    let normal = DVec3::AXES[axis];
+                    SolidRect {
+                        corners: [c0, c0 + du, c0 + du + dv, c0 + dv],
+                        normal,
+                        d: -normal.dot(c0),
+                    }
+                })
+                .collect();
+            let beyond: Vec<Beyond> = rects
+                .iter()
+                .map(|_| Beyond {
+                    positive: rng.random_bool(0.8),
+                    negative: rng.random_bool(0.8),
+                })
+                .collect();
+            let shown = Shown::largest_first(&rects);
+            let eye = DVec3::new(rng.random_range(-6.0..6.0), rng.random_range(-6.0..6.0), rng.random_range(-6.0..6.0));
+            // Every rectangle looked at, in order.
+            let seen = |r: &SolidRect| {
+                let to_eye = eye - r.centre();
+                let across = r.area() * r.normal.dot(to_eye);
+                across * across / to_eye.length_squared()
+            };
+            let mut want: Option<&SolidRect> = None;
+            for (r, b) in rects.iter().zip(&beyond) {
+                if b.from(r, eye) && seen(r) > want.map_or(0.0, seen) {
+                    want = Some(r);
+                }
+            }
+            let got = Shown::largest_seen(&shown, &rects, &beyond, eye);
+            assert_eq!(got.map(seen), want.map(seen), "eye {eye}");
+        }
     }
 }
