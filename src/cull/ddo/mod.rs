@@ -108,7 +108,7 @@ use super::{
     CullCounters, CullError, CullMethod, Culler, InFrustum, MethodEntry, MethodError,
     MethodOptions, Occludees, Preparation, Ranged, View, VisibleSet,
 };
-use super::depth::{CellRect, DepthBuffer, Footprint, Kernel, Scratch, Screen};
+use super::depth::{CellRect, CellSize, DepthBuffer, Footprint, Kernel, Scratch, Screen};
 use crate::geom::{ALL_PLANES, Aabb, Plane, PlaneMask, Side, ordered_bits};
 use super::subtree::frustum_cull_subtree;
 use crate::scene::{BakeCache, Scene};
@@ -569,7 +569,7 @@ impl CullMethod for DdoCulling {
         }
         state.pending.clear();
         let screen = state.canvas.as_mut().map(|canvas| {
-            let screen = Screen::new(view, canvas.cell, self.radius);
+            let screen = Screen::new(view, CellSize::square(canvas.cell), self.radius);
             let (cols, rows) = screen.cells();
             canvas.buffer.reset(cols, rows);
             for (k, others) in &self.first_solids {

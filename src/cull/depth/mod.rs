@@ -42,9 +42,11 @@
 //!   inverse depth rounded up to `f32`; a box reaching the near plane is
 //!   never hidden; the comparison is strict, so a tie is visible.
 //!
-//! Cells of `cell × cell` pixels keep the argument: a cell is written only
-//! where a polygon covers all of its centres, with the least of their
-//! depths. (Coarser cells leave seams where neighbouring polygons meet
+//! Cells of several pixels, square or oblong ([`CellSize`]: `across ×
+//! down`), keep the argument: a cell is written only where a polygon
+//! covers all of its centres, with the least of their depths (a cell
+//! reaching past the view's right or bottom edge counts centres beyond
+//! it too, which only writes less). (Coarser cells leave seams where neighbouring polygons meet
 //! inside a cell, which neither covers whole: on finely tessellated
 //! surfaces they hide far less.)
 
@@ -54,4 +56,4 @@ pub mod screen;
 
 pub use buffer::{CellRect, DepthBuffer};
 pub use kernel::Kernel;
-pub use screen::{Drawn, Footprint, Scratch, Screen};
+pub use screen::{CellSize, Drawn, Footprint, Scratch, Screen};

@@ -10,6 +10,10 @@
 //! affine in `(x, y)`: the side of a plane through the eye (an occluder's
 //! edge seen from the eye) and the inverse depth `1/z` of a plane.
 
+use std::cmp::Ordering;
+use std::fmt;
+use std::str::FromStr;
+
 use glam::DVec3;
 
 use super::buffer::{CellRect, DepthBuffer};
@@ -77,6 +81,60 @@ pub enum Drawn {
     Missed,
 }
 
+/// Pixels per cell, across and down: written `2` for a square, `2x3`
+/// for one two pixels wide and three tall. A draw's cost follows the rows
+/// it writes more than their length, so a taller cell is the cheaper way
+/// to coarsen (docs/ddo.md measures it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CellSize {
+    pub across: usize,
+    pub down: usize,
+}
+
+impl CellSize {
+    /// `n × n` pixels.
+    pub const fn square(n: usize) -> CellSize {
+        CellSize { across: n, down: n }
+    }
+}
+
+impl fmt::Display for CellSize {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.across == self.down {
+            write!(f, "{}", self.across)
+        } else {
+            write!(f, "{}x{}", self.across, self.down)
+        }
+    }
+}
+
+impl FromStr for CellSize {
+    type Err = std::num::ParseIntError;
+
+    fn from_str(text: &str) -> Result<CellSize, Self::Err> {
+        match text.split_once('x') {
+            Some((across, down)) => Ok(CellSize {
+                across: across.parse()?,
+                down: down.parse()?,
+            }),
+            None => text.parse().map(CellSize::square),
+        }
+    }
+}
+
+/// Ordered side by side: one size is within another when it is in both
+/// directions, so a range `1..=8` bounds each side.
+impl PartialOrd for CellSize {
+    fn partial_cmp(&self, other: &CellSize) -> Option<Ordering> {
+        match (self.across.cmp(&other.across), self.down.cmp(&other.down)) {
+            (a, d) if a == d => Some(a),
+            (Ordering::Equal, d) => Some(d),
+            (a, Ordering::Equal) => Some(a),
+            _ => None,
+        }
+    }
+}
+
 /// A view set up against the buffer's cells.
 #[derive(Clone, Copy, Debug)]
 pub struct Screen {
@@ -90,8 +148,9 @@ pub struct Screen {
     /// Viewport, pixels.
     width: f64,
     height: f64,
-    /// Pixels per cell side.
-    cell: usize,
+    /// Pixels per cell across and down.
+    across: usize,
+    down: usize,
     cols: usize,
     rows: usize,
     /// The longest ray `r` (at a corner of the screen).
@@ -101,9 +160,10 @@ pub struct Screen {
 }
 
 impl Screen {
-    /// `view` with cells of `cell × cell` pixels; `scene_radius` bounds the
+    /// `view` with cells of `cell` pixels; `scene_radius` bounds the
     /// scene-local coordinates of everything drawn or tested.
-    pub fn new(view: &View, cell: usize, scene_radius: f64) -> Screen {
+    pub fn new(view: &View, cell: CellSize, scene_radius: f64) -> Screen {
+        let CellSize { across, down } = cell;
         let camera = view.camera();
         let (tx, ty) = camera.half_tangents();
         let [w, h] = camera.viewport;
@@ -118,9 +178,10 @@ impl Screen {
             near: camera.near,
             width: w as f64,
             height: h as f64,
-            cell,
-            cols: (w as usize).div_ceil(cell),
-            rows: (h as usize).div_ceil(cell),
+            across,
+            down,
+            cols: (w as usize).div_ceil(across),
+            rows: (h as usize).div_ceil(down),
             ray: (tx * tx + ty * ty + 1.0).sqrt(),
             slack: TRANSFORM_SLACK * (view.eye().length() + scene_radius),
         }
@@ -256,12 +317,12 @@ impl Screen {
         // Hidden already where it would write (each cell above its nearest
         // inverse depth): drawing it would change nothing.
         let z_min = poly.iter().map(|v| v.z).fold(f64::INFINITY, lesser);
-        let c = self.cell as f64;
+        let (cx, cy) = (self.across as f64, self.down as f64);
         let cells = CellRect {
-            x0: floor_i64(x_lo / c).max(within.x0 as i64) as usize,
-            y0: floor_i64(y_lo / c).max(within.y0 as i64) as usize,
-            x1: floor_i64(x_hi / c).min(within.x1.min(self.cols - 1) as i64) as usize,
-            y1: floor_i64(y_hi / c).min(within.y1.min(self.rows - 1) as i64) as usize,
+            x0: floor_i64(x_lo / cx).max(within.x0 as i64) as usize,
+            y0: floor_i64(y_lo / cy).max(within.y0 as i64) as usize,
+            x1: floor_i64(x_hi / cx).min(within.x1.min(self.cols - 1) as i64) as usize,
+            y1: floor_i64(y_hi / cy).min(within.y1.min(self.rows - 1) as i64) as usize,
         };
         if cells.x0 > cells.x1 || cells.y0 > cells.y1 {
             return Drawn::Missed;
@@ -319,7 +380,7 @@ impl Screen {
         left.clear();
         right.clear();
         level.clear();
-        let bottom = c - 1.0;
+        let bottom = cy - 1.0;
         for &(ea, eb, ec, tol) in edges {
             let (ea, eb, ec) = (ea * s, eb * s, ec * s);
             // |A| + |B| ≥ the edge function's growth per pixel of distance.
@@ -329,14 +390,14 @@ impl Screen {
                 continue;
             }
             let p = (tol - ec) / ea - 0.5;
-            let q = -eb / ea / c;
+            let q = -eb / ea / cx;
             if !(p.is_finite() && q.is_finite()) {
                 return Drawn::Missed;
             }
             if ea > 0.0 {
-                left.push((p / c, q, if q > 0.0 { bottom } else { 0.0 }));
+                left.push((p / cx, q, if q > 0.0 { bottom } else { 0.0 }));
             } else {
-                right.push(((p - (c - 1.0)) / c, q, if q < 0.0 { bottom } else { 0.0 }));
+                right.push(((p - (cx - 1.0)) / cx, q, if q < 0.0 { bottom } else { 0.0 }));
             }
         }
         // In f32, `base + k·step` rounds twice, each within half an ulp of
@@ -344,7 +405,7 @@ impl Screen {
         // depth, `1/z_min`, or a row's worth of steps), and `base` and
         // `step` round once each on the way to f32: three ulps of both
         // bound it, and `base` is lowered by that before conversion.
-        let step = wa * c;
+        let step = wa * cx;
         let step32 = step as f32;
         let f32_margin =
             3.0 * f32::EPSILON as f64 * (1.0 / z_min + 2.0 * self.cols as f64 * step.abs())
@@ -353,7 +414,7 @@ impl Screen {
         // Pixel rows and columns are whole numbers, exact in f64 (and
         // counted as i64: converting an unsigned one costs several steps).
         let last_centre = self.height - 0.5;
-        let y_first = (row_first * self.cell) as i64 as f64 + 0.5;
+        let y_first = (row_first * self.down) as i64 as f64 + 0.5;
         // Each bound is affine in y, taken at its binding row (⌈max⌉ =
         // max⌈⌉). In the screen's last cell row that row may lie below the
         // last pixel row: the bound there is only tighter, and the cell is
@@ -367,7 +428,7 @@ impl Screen {
         let last_col = cells.x1 as i64 as f64;
         buffer
             .kernel()
-            .spans(left, right, (y_first, c), last_col, spans);
+            .spans(left, right, (y_first, cy), last_col, spans);
         if cells.x0 > 0 {
             for span in spans.iter_mut() {
                 span.0 = span.0.max(cells.x0 as i32);
@@ -376,7 +437,7 @@ impl Screen {
         // Rows wholly outside a level edge: none.
         if !level.is_empty() {
             for (k, span) in spans.iter_mut().enumerate() {
-                let y_top = y_first + (k as i64 as f64) * c;
+                let y_top = y_first + (k as i64 as f64) * cy;
                 let y_bot = lesser(y_top + bottom, last_centre);
                 if level
                     .iter()
@@ -389,11 +450,14 @@ impl Screen {
         // The farthest of a cell's corner centres (the least w): its last
         // pixel row where w falls downwards (that row clamped to the
         // screen's last), else its first (never below the last).
-        let x_far = 0.5 + if wa < 0.0 { c - 1.0 } else { 0.0 };
+        let x_far = 0.5 + if wa < 0.0 { cx - 1.0 } else { 0.0 };
         let y_far = y_first + if wb < 0.0 { bottom } else { 0.0 };
+        // The margins taken once (their sum rounds by ~1e-16 of it, far
+        // below `w_round`), not per row.
+        let offset = wc - w_round - f32_margin;
         let base = move |k: usize, lo: i32| {
-            let y = lesser(y_far + (k as i64 as f64) * c, last_centre);
-            (wa * (lo as f64 * c + x_far) + wb * y + wc - w_round - f32_margin) as f32
+            let y = lesser(y_far + (k as i64 as f64) * cy, last_centre);
+            (wa * (lo as f64 * cx + x_far) + wb * y + offset) as f32
         };
         if buffer.raise_rows(row_first, spans, base, step32) {
             Drawn::Raised
@@ -492,13 +556,12 @@ impl Screen {
             // w > 0: the next float up is one more in its bits.
             w32 = f32::from_bits(w32.to_bits() + 1);
         }
-        let c = self.cell;
         Footprint::Cells(
             CellRect {
-                x0: i0 as usize / c,
-                y0: j0 as usize / c,
-                x1: i1 as usize / c,
-                y1: j1 as usize / c,
+                x0: i0 as usize / self.across,
+                y0: j0 as usize / self.down,
+                x1: i1 as usize / self.across,
+                y1: j1 as usize / self.down,
             },
             w32,
         )
@@ -514,6 +577,11 @@ mod tests {
 
     /// A 64 × 48 view down −z from 10 units above the plane `z = 0`.
     fn screen() -> Screen {
+        screen_of_cells(CellSize::square(1))
+    }
+
+    /// [`screen`] with cells of `across × down` pixels.
+    fn screen_of_cells(cells: CellSize) -> Screen {
         let scene = SceneBuilder::new("empty").finish();
         let camera = Camera {
             eye: DVec3::new(0.0, 0.0, 10.0),
@@ -523,7 +591,7 @@ mod tests {
             viewport: [64, 48],
             ..Camera::default()
         };
-        Screen::new(&View::new(camera, &scene).expect("a view"), 1, 100.0)
+        Screen::new(&View::new(camera, &scene).expect("a view"), cells, 100.0)
     }
 
     /// The square `[−h, h]²` of the plane `z = 0`.
@@ -644,6 +712,109 @@ mod tests {
                     );
                 } else {
                     assert_eq!(w, 0.0, "cell ({x}, {y})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn cells_of_any_shape_get_only_what_every_pixel_centre_in_them_sees() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+        let mut scratch = Scratch::default();
+        let mut buffer = DepthBuffer::new(Kernel::detect());
+        // Square and oblong cells, some not dividing the 64 × 48 view.
+        for (across, down) in [(1, 1), (2, 2), (2, 3), (3, 2), (1, 4), (5, 3)] {
+            let cells = CellSize { across, down };
+            let screen = screen_of_cells(cells);
+            let (cols, rows) = screen.cells();
+            for _ in 0..40 {
+                // A quadrilateral on a tilted plane below the eye, convex
+                // (corners at increasing angles around a centre).
+                let normal = DVec3::new(
+                    rng.random_range(-0.6..0.6),
+                    rng.random_range(-0.6..0.6),
+                    1.0,
+                )
+                .normalize();
+                let centre = DVec3::new(
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(-3.0..3.0),
+                    rng.random_range(-4.0..2.0),
+                );
+                let plane = Plane::from_point_normal(centre, normal).expect("a plane");
+                let (u, v) = (
+                    normal.any_orthonormal_vector(),
+                    normal.cross(normal.any_orthonormal_vector()),
+                );
+                let start = rng.random_range(0.0..std::f64::consts::TAU);
+                let quad: [DVec3; 4] = std::array::from_fn(|k| {
+                    let a = start
+                        + k as f64 * std::f64::consts::FRAC_PI_2
+                        + rng.random_range(-0.5..0.5);
+                    centre + (u * a.cos() + v * a.sin()) * rng.random_range(1.0..5.0)
+                });
+                buffer.reset(cols, rows);
+                screen.draw(&quad, &plane, 0.0, &mut buffer, &mut scratch);
+                // Per pixel centre: the inverse depth of the polygon there,
+                // and whether it lies inside by `margin` (scene units).
+                let seen = |x: usize, y: usize, margin: f64| {
+                    let (sx, sy) = (
+                        2.0 * (x as f64 + 0.5) / 64.0 - 1.0,
+                        1.0 - 2.0 * (y as f64 + 0.5) / 48.0,
+                    );
+                    let dir = DVec3::new(sx * screen.tx, sy * screen.ty, -1.0);
+                    let z = -plane.signed_distance(screen.eye) / plane.normal.dot(dir);
+                    let p = screen.eye + dir * z;
+                    let inside = (0..4).all(|k| {
+                        let (a, b) = (quad[k], quad[(k + 1) % 4]);
+                        (b - a).cross(p - a).dot(normal) / (b - a).length() > margin
+                    });
+                    (1.0 / z, inside)
+                };
+                for cy in 0..rows {
+                    for cx in 0..cols {
+                        let w = buffer.cell((cx, cy)) as f64;
+                        let centres: Vec<(usize, usize)> = (cy * cells.down
+                            ..((cy + 1) * cells.down).min(48))
+                            .flat_map(|y| {
+                                (cx * cells.across..((cx + 1) * cells.across).min(64))
+                                    .map(move |x| (x, y))
+                            })
+                            .collect();
+                        // A cell reaching past the view's edge is only
+                        // checked for what it must not hold: it counts
+                        // centres beyond the edge, and may hold less.
+                        let whole = centres.len() == cells.across * cells.down;
+                        if w > 0.0 {
+                            // Every centre covered, none nearer than what
+                            // the cell holds, and the farthest of them
+                            // held but for the margins.
+                            let mut farthest = f64::INFINITY;
+                            for &(x, y) in &centres {
+                                let (exact, inside) = seen(x, y, 0.0);
+                                assert!(
+                                    inside,
+                                    "{cells:?}: cell ({cx}, {cy}) written, pixel ({x}, {y}) uncovered"
+                                );
+                                assert!(
+                                    w <= exact,
+                                    "{cells:?}: cell ({cx}, {cy}) holds {w} > {exact} at ({x}, {y})"
+                                );
+                                farthest = farthest.min(exact);
+                            }
+                            assert!(
+                                !whole || w >= farthest * (1.0 - 1e-5),
+                                "{cells:?}: cell ({cx}, {cy}) holds {w}, its farthest centre {farthest}"
+                            );
+                        } else if whole {
+                            // Covered well inside at every centre: written.
+                            assert!(
+                                !centres.iter().all(|&(x, y)| seen(x, y, 0.05).1),
+                                "{cells:?}: cell ({cx}, {cy}) covered but not written"
+                            );
+                        }
+                    }
                 }
             }
         }

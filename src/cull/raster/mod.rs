@@ -66,7 +66,7 @@ use offers::{Offer, Offers, WHOLE};
 use proxies::Proxies;
 use surfaces::{Outside, Surfaces};
 
-use super::depth::{CellRect, DepthBuffer, Drawn, Footprint, Kernel, Scratch, Screen};
+use super::depth::{CellRect, CellSize, DepthBuffer, Drawn, Footprint, Kernel, Scratch, Screen};
 use super::occlusion::Visibility;
 use super::occlusion::hierarchy;
 use super::pool::BufferPool;
@@ -653,7 +653,7 @@ impl CullMethod for RasterCulling {
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
-        let screen = Screen::new(view, state.cell, self.radius);
+        let screen = Screen::new(view, CellSize::square(state.cell), self.radius);
         let mut canvas = state.canvas.take().unwrap_or_else(|| state.pool.take(state.kernel));
         canvas.begin(self.scene.objects().len(), screen.cells(), state);
         let canvas = state.canvas.insert(canvas);
