@@ -509,7 +509,10 @@ impl Screen {
     /// The cells `b` (scene-local) may cover and its nearest inverse depth.
     pub fn footprint(&self, b: &Aabb) -> Footprint {
         // Corners as the near corner plus the box's edges in view space.
-        let e = (b.max - b.min).as_dvec3();
+        // The edges are taken in f64: in f32 their rounding (half an ulp
+        // of the box's size) could move a corner nearer the eye than
+        // the slack allows for.
+        let e = b.max.as_dvec3() - b.min.as_dvec3();
         let base = self.view_of(b.min.as_dvec3());
         let axis =
             |len: f64, a: usize| DVec3::new(self.right[a], self.up[a], self.forward[a]) * len;
@@ -813,6 +816,69 @@ mod tests {
                                 !centres.iter().all(|&(x, y)| seen(x, y, 0.05).1),
                                 "{cells:?}: cell ({cx}, {cy}) covered but not written"
                             );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_box_footprint_holds_every_cell_whose_pixel_centres_see_it() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(29);
+        for (across, down) in [(1, 1), (2, 2), (2, 3), (3, 2), (1, 4), (5, 3)] {
+            let cells = CellSize { across, down };
+            let screen = screen_of_cells(cells);
+            for _ in 0..60 {
+                let c = DVec3::new(
+                    rng.random_range(-4.0..4.0),
+                    rng.random_range(-4.0..4.0),
+                    rng.random_range(-6.0..8.0),
+                );
+                let h = DVec3::new(
+                    rng.random_range(0.01..2.0),
+                    rng.random_range(0.01..2.0),
+                    rng.random_range(0.01..2.0),
+                );
+                let b = Aabb::new((c - h).as_vec3(), (c + h).as_vec3());
+                let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+                let footprint = screen.footprint(&b);
+                for y in 0..48 {
+                    for x in 0..64 {
+                        let (sx, sy) = (
+                            2.0 * (x as f64 + 0.5) / 64.0 - 1.0,
+                            1.0 - 2.0 * (y as f64 + 0.5) / 48.0,
+                        );
+                        let dir = DVec3::new(sx * screen.tx, sy * screen.ty, -1.0);
+                        // Where the ray from the eye enters the box (slabs).
+                        let (mut enter, mut leave) = (0.0f64, f64::INFINITY);
+                        for a in 0..3 {
+                            let (t0, t1) = (
+                                (lo[a] - screen.eye[a]) / dir[a],
+                                (hi[a] - screen.eye[a]) / dir[a],
+                            );
+                            enter = enter.max(t0.min(t1));
+                            leave = leave.min(t0.max(t1));
+                        }
+                        if enter > leave || enter < screen.near {
+                            continue; // missed, or met only nearer than the near plane
+                        }
+                        let cell = (x / cells.across, y / cells.down);
+                        match footprint {
+                            Footprint::Near => {}
+                            Footprint::Nothing => panic!("{cells:?}: pixel ({x}, {y}) sees {b:?}"),
+                            Footprint::Cells(r, w) => {
+                                assert!(
+                                    (r.x0..=r.x1).contains(&cell.0)
+                                        && (r.y0..=r.y1).contains(&cell.1),
+                                    "{cells:?}: pixel ({x}, {y}) sees {b:?} from cell {cell:?}, outside {r:?}"
+                                );
+                                assert!(
+                                    w as f64 >= 1.0 / enter,
+                                    "{cells:?}: {b:?} is nearer than {w} at pixel ({x}, {y})"
+                                );
+                            }
                         }
                     }
                 }
