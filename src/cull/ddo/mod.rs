@@ -32,10 +32,10 @@
 //! beyond it. Sampling at pixel centres as truth does closes the seams
 //! between neighbouring faces, of one plane or of several, that the
 //! coordinate-plane maps below leave open; docs/ddo.md measures both.
-//! With `cell=n` the buffer's cells are `n × n` pixels, each written only
-//! where one polygon covers all of its centres: the same argument, fewer
-//! cells to write and test, usually less hidden (seams open again, up to
-//! a cell wide).
+//! With `cell=n` the buffer's cells are `n × n` pixels (`cell=2x3`: two
+//! across, three down), each written only where one polygon covers all of
+//! its centres: the same argument, fewer cells to write and test, usually
+//! less hidden (seams open again, up to a cell wide).
 //!
 //! **Solid occluders** ([`solid`], screen map only). The bake also finds
 //! rectangles proved to lie inside closed opaque surfaces, valid from any
@@ -142,17 +142,19 @@ const PLANES: &str = "planes";
 /// objects found visible before it; the octree faces are not drawn.
 const TRAVERSAL: &str = "traversal";
 
-/// Pixels per side of the screen map's cells: 1 by default. Coarser cells
-/// are fewer to write and test, and usually hide less: a cell is written only
-/// where one polygon covers all of its pixel centres, so each section
-/// loses a rim and neighbouring skin rectangles leave seams (docs/ddo.md
-/// measures the trade at 1024×768).
-const CELL: Ranged<usize> = Ranged {
+/// Pixels per cell of the screen map, square (`cell=2`) or across × down
+/// (`cell=2x3`): 1 by default. Coarser cells are fewer to write and test,
+/// and usually hide less: a cell is written only where one polygon covers
+/// all of its pixel centres, so each section loses a rim and neighbouring
+/// skin rectangles leave seams. Taller cells cost less for what they hide
+/// (a draw's cost follows its rows): docs/ddo.md measures the trade at
+/// 1024×768.
+const CELL: Ranged<CellSize> = Ranged {
     key: "cell",
-    noun: "a whole number of pixels",
-    default: 1,
-    min: 1,
-    max: 8,
+    noun: "pixels per cell side (2) or across x down (2x3), each",
+    default: CellSize::square(1),
+    min: CellSize::square(1),
+    max: CellSize::square(8),
 };
 
 const OPTIONS: [&str; 7] = [REGIONS, MAP, CELLS.key, PLANES, SPLITS.key, TRAVERSAL, CELL.key];
@@ -199,6 +201,7 @@ pub const ENTRY: MethodEntry = MethodEntry {
         "map=exact:splits=2",
         "traversal=objects",
         "traversal=objects:cell=2",
+        "traversal=objects:cell=2x3",
     ],
     regions: Some("its octree faces are proven occluders from direction regions of single eyes, not shrunk for a ball of eyes, and its occlusion map is drawn on one camera's plane"),
     build,
@@ -452,13 +455,13 @@ pub struct DdoState {
     order: Vec<u64>,
 }
 
-/// A depth buffer at pixel centres (in cells of `cell × cell` of them)
-/// and the buffers its drawing reuses.
+/// A depth buffer at pixel centres (in cells of `cell` of them) and the
+/// buffers its drawing reuses.
 struct Canvas {
     buffer: DepthBuffer,
     scratch: Scratch,
-    /// Pixels per cell side ([`CELL`]).
-    cell: usize,
+    /// Pixels per cell ([`CELL`]).
+    cell: CellSize,
 }
 
 impl CullMethod for DdoCulling {
@@ -569,7 +572,7 @@ impl CullMethod for DdoCulling {
         }
         state.pending.clear();
         let screen = state.canvas.as_mut().map(|canvas| {
-            let screen = Screen::new(view, CellSize::square(canvas.cell), self.radius);
+            let screen = Screen::new(view, canvas.cell, self.radius);
             let (cols, rows) = screen.cells();
             canvas.buffer.reset(cols, rows);
             for (k, others) in &self.first_solids {
@@ -1182,7 +1185,7 @@ mod tests {
     fn a_closed_shell_hides_what_it_holds() {
         let method = baked(&boxed_scene(None));
         for eye in [DVec3::new(0.3, 0.2, 5.0), DVec3::new(-4.0, 1.5, 0.7), DVec3::new(3.5, -1.0, 1.5)] {
-            for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "cell=2", "traversal=objects:cell=3"] {
+            for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "cell=2", "traversal=objects:cell=3", "traversal=objects:cell=2x3"] {
                 assert_eq!(cull(&method, eye, options), vec![0], "from {eye} with {options:?}");
             }
             // The grid's seams between faces stay open: it only may hide.
@@ -1235,7 +1238,7 @@ mod tests {
             assert!(error.contains("option 'cell'"), "{text}: {error}");
             assert!(error.contains("nothing with map=exact or map=grid"), "{text}: {error}");
         }
-        for text in ["cell=0", "cell=9", "cell=1.5"] {
+        for text in ["cell=0", "cell=9", "cell=1.5", "cell=2x9", "cell=0x2", "cell=2x", "cell=x"] {
             let error = refusal(text);
             assert!(error.contains("from 1 to 8"), "{text}: {error}");
         }
@@ -1244,10 +1247,11 @@ mod tests {
     #[test]
     fn a_coarser_cell_holds_fewer_cells_and_hides_the_same_inside() {
         // The buffer is sized by the screen's cells: a quarter as many
-        // with cell=2, a 64th with cell=8, each answering the same here.
+        // with cell=2, a sixth with 2x3, a 64th with cell=8, each
+        // answering the same here.
         let method = baked(&boxed_scene(None));
         let eye = DVec3::new(0.3, 0.2, 5.0);
-        let sizes: Vec<usize> = ["", "cell=2", "cell=8"]
+        let sizes: Vec<usize> = ["", "cell=2", "cell=2x3", "cell=8"]
             .iter()
             .map(|text| {
                 let (ids, bytes) = cull_with_state(&method, eye, text);
@@ -1255,7 +1259,7 @@ mod tests {
                 bytes
             })
             .collect();
-        assert!(sizes[0] > sizes[1] && sizes[1] > sizes[2], "{sizes:?}");
+        assert!(sizes.windows(2).all(|w| w[0] > w[1]), "{sizes:?}");
     }
 
     #[test]
@@ -1264,7 +1268,7 @@ mod tests {
         // seen through it from straight above.
         let method = baked(&boxed_scene(Some((8, 8))));
         let eye = DVec3::new(0.06, 0.06, 5.0);
-        for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "map=grid", "cell=2", "traversal=objects:cell=3"] {
+        for options in ["", "regions=32", "map=exact", "map=exact:planes=best", "map=grid", "cell=2", "traversal=objects:cell=3", "traversal=objects:cell=2x3"] {
             assert_eq!(cull(&method, eye, options), vec![0, 1], "with {options:?}");
         }
         // From the other side the shell is whole.

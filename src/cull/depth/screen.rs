@@ -721,6 +721,31 @@ mod tests {
     }
 
     #[test]
+    fn a_cell_size_reads_as_one_side_or_across_x_down_and_ranges_side_by_side() {
+        let size = |across, down| CellSize { across, down };
+        assert_eq!("2".parse(), Ok(size(2, 2)));
+        assert_eq!("2x3".parse(), Ok(size(2, 3)));
+        for text in ["", "x", "2x", "x3", "2x3x4", "2.5", "-1"] {
+            assert!(text.parse::<CellSize>().is_err(), "{text:?}");
+        }
+        for s in [size(2, 2), size(2, 3), size(8, 1)] {
+            assert_eq!(s.to_string().parse(), Ok(s));
+        }
+        assert_eq!(size(3, 3).to_string(), "3");
+        // Within 1..=8 only where both sides are.
+        let (min, max) = (CellSize::square(1), CellSize::square(8));
+        for (s, within) in [
+            (size(2, 3), true),
+            (size(8, 8), true),
+            (size(2, 9), false),
+            (size(0, 2), false),
+        ] {
+            assert_eq!(min <= s && s <= max, within, "{s}");
+        }
+        assert_eq!(size(2, 3).partial_cmp(&size(3, 2)), None);
+    }
+
+    #[test]
     fn cells_of_any_shape_get_only_what_every_pixel_centre_in_them_sees() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
