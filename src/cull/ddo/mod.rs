@@ -151,7 +151,7 @@ const TRAVERSAL: &str = "traversal";
 /// 1024×768.
 const CELL: Ranged<CellSize> = Ranged {
     key: "cell",
-    noun: "pixels per cell side (2) or across x down (2x3), each",
+    noun: "a whole number of pixels a side (2) or across x down (2x3), each",
     default: CellSize::square(1),
     min: CellSize::square(1),
     max: CellSize::square(8),
@@ -406,7 +406,8 @@ impl Shown {
     /// Of `rects` (with their `shown`, largest first, and [`Beyond`]),
     /// the one `eye` sees largest among those with something beyond
     /// them from it: by shown area squared, `area² · cos²`, no square
-    /// root.
+    /// root. Between two seen within rounding of each other it may pick
+    /// either: the choice only decides how much is hidden.
     fn largest_seen<'a>(shown: &[Shown], rects: &'a [SolidRect], beyond: &[Beyond], eye: DVec3) -> Option<&'a SolidRect> {
         let mut best = (0.0, None);
         for shown in shown {
@@ -547,7 +548,7 @@ impl CullMethod for DdoCulling {
             + state.seen.capacity() * 4
             + state.pending.capacity() * std::mem::size_of::<(usize, Rect)>()
             + state.canvas.as_ref().map_or(0, |c| c.buffer.heap_bytes())
-            + state.order.capacity() * 8
+            + state.order.capacity() * std::mem::size_of::<u64>()
             + state.in_frustum.heap_bytes()
     }
 

@@ -1,5 +1,5 @@
-//! The depth buffer: one value per cell (a cell is a square of viewport
-//! pixels), the *inverse* depth `1/z` of the nearest occluder known to
+//! The depth buffer: one value per cell (a cell is a rectangle of
+//! viewport pixels), the *inverse* depth `1/z` of the nearest occluder known to
 //! cover every pixel centre of the cell, and per tile of 8×8 cells the
 //! least of them (the farthest). Zero means nothing covers the cell, and
 //! stands for a depth at infinity, so a cleared buffer hides nothing.

@@ -59,26 +59,27 @@ impl Kernel {
     }
 
     /// The cells of consecutive cell rows inside a convex polygon: for row
-    /// `k` of `rows`, whose top pixel centre is at `y = y_top + k·cell`,
+    /// `k` of `rows`, whose top pixel centre is at `y = y_top + k·down`
+    /// (`down` pixel rows a cell row),
     /// `(⌈max(0, maxₗ pₗ + qₗ·(y + atₗ))⌉, ⌊min(last_col, minᵣ pᵣ +
     /// qᵣ·(y + atᵣ))⌋)` over the `left` and `right` bounds (the first
     /// above the last where no cell is inside; either may then be clamped
     /// to one past the row's ends). The bounds must be finite, `y_top` and
-    /// `cell` whole numbers and a half, `last_col` a whole number below
+    /// `down` whole numbers and a half, `last_col` a whole number below
     /// 2³¹ − 1.
     pub fn spans(
         self,
         left: &[Bound],
         right: &[Bound],
-        (y_top, cell): (f64, f64),
+        (y_top, down): (f64, f64),
         last_col: f64,
         rows: &mut [Span],
     ) {
         match self {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `raise`.
-            Kernel::Avx2 => unsafe { avx2::spans(left, right, (y_top, cell), last_col, rows) },
-            _ => spans_scalar(left, right, (y_top, cell), last_col, rows),
+            Kernel::Avx2 => unsafe { avx2::spans(left, right, (y_top, down), last_col, rows) },
+            _ => spans_scalar(left, right, (y_top, down), last_col, rows),
         }
     }
 
@@ -190,13 +191,13 @@ fn rises_scalar(cells: &[f32], base: f32, step: f32) -> bool {
 fn spans_scalar(
     left: &[Bound],
     right: &[Bound],
-    (y_top, cell): (f64, f64),
+    (y_top, down): (f64, f64),
     last_col: f64,
     rows: &mut [Span],
 ) {
     for (k, out) in rows.iter_mut().enumerate() {
         // Whole numbers and a half: exact, however summed.
-        let y = y_top + k as f64 * cell;
+        let y = y_top + k as f64 * down;
         let mut first = 0.0f64;
         for &(p, q, at) in left {
             first = greater(first, p + q * (y + at));
@@ -314,20 +315,20 @@ mod avx2 {
     pub(super) unsafe fn spans(
         left: &[super::Bound],
         right: &[super::Bound],
-        (y_top, cell): (f64, f64),
+        (y_top, down): (f64, f64),
         last_col: f64,
         rows: &mut [super::Span],
     ) {
         // Four rows at a time, each lane the scalar loop's operations on
         // its row: `y` is exact, then (y + at), q·, p + in that order.
         let steps = _mm256_setr_pd(0.0, 1.0, 2.0, 3.0);
-        let vcell = _mm256_set1_pd(cell);
+        let vdown = _mm256_set1_pd(down);
         let (zero, vlast) = (_mm256_setzero_pd(), _mm256_set1_pd(last_col));
         let (past, before) = (_mm256_set1_pd(last_col + 1.0), _mm256_set1_pd(-1.0));
         let mut k = 0;
         while k < rows.len() {
             let ks = _mm256_add_pd(_mm256_set1_pd(k as f64), steps);
-            let y = _mm256_add_pd(_mm256_set1_pd(y_top), _mm256_mul_pd(ks, vcell));
+            let y = _mm256_add_pd(_mm256_set1_pd(y_top), _mm256_mul_pd(ks, vdown));
             let bound = |&(p, q, at): &super::Bound| {
                 let at = _mm256_add_pd(y, _mm256_set1_pd(at));
                 _mm256_add_pd(_mm256_set1_pd(p), _mm256_mul_pd(_mm256_set1_pd(q), at))

@@ -45,10 +45,10 @@
 //! Cells of several pixels, square or oblong ([`CellSize`]: `across ×
 //! down`), keep the argument: a cell is written only where a polygon
 //! covers all of its centres, with the least of their depths (a cell
-//! reaching past the view's right or bottom edge counts centres beyond
-//! it too, which only writes less). (Coarser cells leave seams where neighbouring polygons meet
-//! inside a cell, which neither covers whole: on finely tessellated
-//! surfaces they hide far less.)
+//! reaching past the view's right or bottom edge may count centres beyond
+//! it too, which only writes less). (Coarser cells leave seams where
+//! neighbouring polygons meet inside a cell, which neither covers whole:
+//! on finely tessellated surfaces they hide far less.)
 
 pub mod buffer;
 pub mod kernel;

@@ -164,6 +164,7 @@ impl Screen {
     /// scene-local coordinates of everything drawn or tested.
     pub fn new(view: &View, cell: CellSize, scene_radius: f64) -> Screen {
         let CellSize { across, down } = cell;
+        debug_assert!(across > 0 && down > 0, "cells of {cell} pixels");
         let camera = view.camera();
         let (tx, ty) = camera.half_tangents();
         let [w, h] = camera.viewport;
@@ -243,8 +244,8 @@ impl Screen {
 
     /// Draws the convex polygon `corners` (scene-local) of plane `plane`
     /// into `buffer`: every cell all of whose pixel centres it covers
-    /// (beyond the near plane) gets at least `1/z` of its farthest point
-    /// among those centres, with the polygon taken `thickness` farther
+    /// (beyond the near plane) is raised to a lower bound of `1/z` at its
+    /// farthest point among those centres, with the polygon taken `thickness` farther
     /// from the eye than its plane (what its triangles may stray from it).
     /// What it did: [`Drawn`].
     pub fn draw<C: Copy + Into<DVec3>>(
@@ -373,9 +374,9 @@ impl Screen {
         // wholly on one side for level edges. Solving `A·x + B·y + C ≥ tol`
         // once instead of per row rounds differently by ~1e-16 of the
         // terms, under 1e-9 of the pixel slack in `tol` on any viewport.
-        // Each bound binds at one of the cell row's two pixel rows, known
-        // from its slope: kept as that row's offset from the top one, so
-        // a row costs no branch per edge.
+        // Each bound binds at the cell row's top or bottom pixel row,
+        // known from its slope: kept as that row's offset from the top
+        // one, so a row costs no branch per edge.
         let (left, right, level) = (&mut scratch.left, &mut scratch.right, &mut scratch.level);
         left.clear();
         right.clear();
@@ -510,8 +511,8 @@ impl Screen {
     pub fn footprint(&self, b: &Aabb) -> Footprint {
         // Corners as the near corner plus the box's edges in view space.
         // The edges are taken in f64: in f32 their rounding (half an ulp
-        // of the box's size) could move a corner nearer the eye than
-        // the slack allows for.
+        // of the box's size) could move a corner farther from the eye, or
+        // inward on screen, by more than the slack allows for.
         let e = b.max.as_dvec3() - b.min.as_dvec3();
         let base = self.view_of(b.min.as_dvec3());
         let axis =
@@ -751,14 +752,15 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
         let mut scratch = Scratch::default();
         let mut buffer = DepthBuffer::new(Kernel::detect());
-        // Square and oblong cells, some not dividing the 64 × 48 view.
-        for (across, down) in [(1, 1), (2, 2), (2, 3), (3, 2), (1, 4), (5, 3)] {
+        // Square and oblong cells, some not dividing the 64 × 48 view
+        // across (5), down (5, 7) or both.
+        for (across, down) in [(1, 1), (2, 2), (2, 3), (3, 2), (1, 5), (5, 7)] {
             let cells = CellSize { across, down };
             let screen = screen_of_cells(cells);
             let (cols, rows) = screen.cells();
             for _ in 0..40 {
                 // A quadrilateral on a tilted plane below the eye, convex
-                // (corners at increasing angles around a centre).
+                // (corners at increasing angles on an ellipse).
                 let normal = DVec3::new(
                     rng.random_range(-0.6..0.6),
                     rng.random_range(-0.6..0.6),
@@ -776,11 +778,12 @@ mod tests {
                     normal.cross(normal.any_orthonormal_vector()),
                 );
                 let start = rng.random_range(0.0..std::f64::consts::TAU);
+                let (ru, rv) = (rng.random_range(1.0..5.0), rng.random_range(1.0..5.0));
                 let quad: [DVec3; 4] = std::array::from_fn(|k| {
                     let a = start
                         + k as f64 * std::f64::consts::FRAC_PI_2
                         + rng.random_range(-0.5..0.5);
-                    centre + (u * a.cos() + v * a.sin()) * rng.random_range(1.0..5.0)
+                    centre + u * (ru * a.cos()) + v * (rv * a.sin())
                 });
                 buffer.reset(cols, rows);
                 screen.draw(&quad, &plane, 0.0, &mut buffer, &mut scratch);
@@ -852,7 +855,7 @@ mod tests {
     fn a_box_footprint_holds_every_cell_whose_pixel_centres_see_it() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(29);
-        for (across, down) in [(1, 1), (2, 2), (2, 3), (3, 2), (1, 4), (5, 3)] {
+        for (across, down) in [(1, 1), (2, 2), (2, 3), (3, 2), (1, 5), (5, 7)] {
             let cells = CellSize { across, down };
             let screen = screen_of_cells(cells);
             for _ in 0..60 {
