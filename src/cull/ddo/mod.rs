@@ -254,8 +254,8 @@ pub struct DdoCulling {
     /// into: a rectangle with nothing beyond it from the eye (the far
     /// half of a closed body with nothing outside it) is not drawn.
     beyond: Vec<Vec<Beyond>>,
-    /// Per solid, its rectangles' [`Shown`], largest first: a part draws
-    /// the one a view shows largest.
+    /// Per part's solid, its rectangles' [`Shown`], largest first: a part
+    /// draws the one a view shows largest (none for a large solid).
     shown: Vec<Vec<Shown>>,
 }
 
@@ -285,7 +285,12 @@ impl DdoCulling {
         }
         let margin = validity::margin(scene.bounds().extent().max_element() as f64);
         let beyond = solid::beyond(tree.solids(), &boxes);
-        let shown = tree.solids().iter().map(|s| Shown::largest_first(&s.rects)).collect();
+        // A large solid draws all its rectangles: only parts choose.
+        let shown = tree
+            .solids()
+            .iter()
+            .map(|s| if s.large { Vec::new() } else { Shown::largest_first(&s.rects) })
+            .collect();
         DdoCulling {
             boxes,
             beyond,
