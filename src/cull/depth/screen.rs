@@ -245,9 +245,9 @@ impl Screen {
     /// Draws the convex polygon `corners` (scene-local) of plane `plane`
     /// into `buffer`: every cell all of whose pixel centres it covers
     /// (beyond the near plane) is raised to a lower bound of `1/z` at its
-    /// farthest point among those centres, with the polygon taken `thickness` farther
-    /// from the eye than its plane (what its triangles may stray from it).
-    /// What it did: [`Drawn`].
+    /// farthest point among those centres, with the polygon taken
+    /// `thickness` farther from the eye than its plane (what its triangles
+    /// may stray from it). What it did: [`Drawn`].
     pub fn draw<C: Copy + Into<DVec3>>(
         &self,
         corners: &[C],
