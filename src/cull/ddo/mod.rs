@@ -250,9 +250,10 @@ pub struct DdoCulling {
     /// Per object, its box: read in order of depth, where the objects'
     /// own records lie apart.
     boxes: Vec<Aabb>,
-    /// Per solid and rectangle, the sides of its plane an object reaches
-    /// into: a rectangle with nothing beyond it from the eye (the far
-    /// half of a closed body with nothing outside it) is not drawn.
+    /// Per large solid and rectangle, the sides of its plane an object
+    /// reaches into: a rectangle with nothing beyond it from the eye (the
+    /// far half of a closed body with nothing outside it) is not drawn
+    /// (none for a part: its [`Shown`] hold its own).
     beyond: Vec<Vec<Beyond>>,
     /// Per part's solid, its rectangles' [`Shown`], largest first: a part
     /// draws the one a view shows largest (none for a large solid).
@@ -284,13 +285,14 @@ impl DdoCulling {
             }
         }
         let margin = validity::margin(scene.bounds().extent().max_element() as f64);
-        let beyond = solid::beyond(tree.solids(), &boxes);
-        // A large solid draws all its rectangles: only parts choose.
-        let shown = tree
+        // A large solid draws all its rectangles that have something
+        // beyond them; a part chooses one, its `Beyond` kept in its `shown`.
+        let (beyond, shown) = tree
             .solids()
             .iter()
-            .map(|s| if s.large { Vec::new() } else { Shown::largest_first(&s.rects) })
-            .collect();
+            .zip(solid::beyond(tree.solids(), &boxes))
+            .map(|(s, beyond)| if s.large { (beyond, Vec::new()) } else { (Vec::new(), Shown::largest_first(&s.rects, &beyond)) })
+            .unzip();
         DdoCulling {
             boxes,
             beyond,
@@ -317,7 +319,6 @@ impl DdoCulling {
             return;
         }
         let eye = view.eye();
-        let beyond = &self.beyond[k as usize];
         let draw = |r: &SolidRect, canvas: &mut Canvas| {
             let plane = Plane {
                 normal: r.normal,
@@ -326,14 +327,14 @@ impl DdoCulling {
             screen.draw_within(&r.corners, &plane, self.margin, within, &mut canvas.buffer, &mut canvas.scratch);
         };
         if s.large {
-            for (r, beyond) in s.rects.iter().zip(beyond) {
+            for (r, beyond) in s.rects.iter().zip(&self.beyond[k as usize]) {
                 if beyond.from(r, eye) {
                     draw(r, canvas);
                 }
             }
             return;
         }
-        if let Some(r) = Shown::largest_seen(&self.shown[k as usize], &s.rects, beyond, eye) {
+        if let Some(r) = Shown::largest_seen(&self.shown[k as usize], &s.rects, eye) {
             draw(r, canvas);
         }
     }
@@ -376,31 +377,36 @@ impl DdoCulling {
 }
 
 /// What a view can show of a solid's rectangle, for choosing a part's
-/// largest on screen.
+/// largest on screen: all the choice reads of it, side by side in one
+/// record, as the rectangles themselves lie apart.
 #[derive(Clone, Copy, Debug)]
 struct Shown {
     /// Its index among the solid's rectangles.
     rect: u32,
-    area: f64,
+    beyond: Beyond,
+    /// Its area times its normal.
+    across: DVec3,
     centre: DVec3,
     /// The most any eye sees of it, as the choice measures it (shown
-    /// area squared): `(area · |normal|)²`.
+    /// area squared): `|across|²`.
     most: f64,
 }
 
 impl Shown {
-    /// Of each of `rects`, the largest first.
-    fn largest_first(rects: &[SolidRect]) -> Vec<Shown> {
+    /// Of each of `rects` (with its [`Beyond`]), the largest first.
+    fn largest_first(rects: &[SolidRect], beyond: &[Beyond]) -> Vec<Shown> {
         let mut shown: Vec<Shown> = rects
             .iter()
+            .zip(beyond)
             .enumerate()
-            .map(|(k, r)| {
-                let area = r.area();
+            .map(|(k, (r, &beyond))| {
+                let across = r.normal * r.area();
                 Shown {
                     rect: k as u32,
-                    area,
+                    beyond,
+                    across,
                     centre: r.centre(),
-                    most: (area * r.normal.length()).powi(2),
+                    most: across.length_squared(),
                 }
             })
             .collect();
@@ -408,28 +414,30 @@ impl Shown {
         shown
     }
 
-    /// Of `rects` (with their `shown`, largest first, and [`Beyond`]),
-    /// the one `eye` sees largest among those with something beyond
-    /// them from it: by shown area squared, `area² · cos²`, no square
-    /// root. Between two seen within rounding of each other it may pick
-    /// either: the choice only decides how much is hidden.
-    fn largest_seen<'a>(shown: &[Shown], rects: &'a [SolidRect], beyond: &[Beyond], eye: DVec3) -> Option<&'a SolidRect> {
-        let mut best = (0.0, None);
+    /// Of `rects` (with their `shown`, largest first), the one `eye` sees
+    /// largest among those with something beyond them from it: by shown
+    /// area squared, `area² · cos²`, no square root. Between two seen
+    /// within rounding of each other it may pick either: the choice only
+    /// decides how much is hidden.
+    fn largest_seen<'a>(shown: &[Shown], rects: &'a [SolidRect], eye: DVec3) -> Option<&'a SolidRect> {
+        // The best seen as a fraction `num / den`, compared across
+        // (no division on the way).
+        let (mut num, mut den, mut best) = (0.0, 1.0, None);
         for shown in shown {
             // None shows more than its whole area: once the largest left
             // are smaller than the best seen, none of them can beat it.
-            if shown.most <= best.0 {
+            if shown.most * den <= num {
                 break;
             }
-            let r = &rects[shown.rect as usize];
             let to_eye = eye - shown.centre;
-            let across = shown.area * r.normal.dot(to_eye);
-            let seen = across * across / to_eye.length_squared();
-            if seen > best.0 && beyond[shown.rect as usize].from(r, eye) {
-                best = (seen, Some(r));
+            let across = shown.across.dot(to_eye);
+            let (n, d) = (across * across, to_eye.length_squared());
+            // The eye lies on the normal's side where `across` is positive.
+            if n * den > num * d && shown.beyond.past(across > 0.0) {
+                (num, den, best) = (n, d, Some(shown.rect));
             }
         }
-        best.1
+        best.map(|k| &rects[k as usize])
     }
 }
 
@@ -1314,7 +1322,7 @@ mod tests {
                     negative: rng.random_bool(0.8),
                 })
                 .collect();
-            let shown = Shown::largest_first(&rects);
+            let shown = Shown::largest_first(&rects, &beyond);
             let eye = DVec3::new(rng.random_range(-6.0..6.0), rng.random_range(-6.0..6.0), rng.random_range(-6.0..6.0));
             // Every rectangle looked at, in order.
             let seen = |r: &SolidRect| {
@@ -1328,7 +1336,7 @@ mod tests {
                     want = Some(r);
                 }
             }
-            let got = Shown::largest_seen(&shown, &rects, &beyond, eye);
+            let got = Shown::largest_seen(&shown, &rects, eye);
             assert_eq!(got.map(seen), want.map(seen), "eye {eye}");
         }
     }

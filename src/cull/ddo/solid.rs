@@ -139,11 +139,13 @@ impl Beyond {
     /// Whether a box reaches past the plane on the side away from `eye`:
     /// only there can the rectangle hide anything tested.
     pub fn from(self, r: &SolidRect, eye: DVec3) -> bool {
-        if r.normal.dot(eye) + r.d > 0.0 {
-            self.negative
-        } else {
-            self.positive
-        }
+        self.past(r.normal.dot(eye) + r.d > 0.0)
+    }
+
+    /// [`Beyond::from`] an eye on the normal's side of the plane
+    /// (`eye_above`) or not.
+    pub fn past(self, eye_above: bool) -> bool {
+        if eye_above { self.negative } else { self.positive }
     }
 }
 
