@@ -586,7 +586,7 @@ impl CullMethod for DdoCulling {
         }
         state.pending.clear();
         let screen = state.canvas.as_mut().map(|canvas| {
-            let screen = Screen::new(view, canvas.cell, self.radius);
+            let screen = Screen::new(view, canvas.cell, self.radius, canvas.buffer.kernel());
             let (cols, rows) = screen.cells();
             canvas.buffer.reset(cols, rows);
             for (k, others) in &self.first_solids {

@@ -5,6 +5,8 @@
 //! a whole number), so they give the same bits, and a test holds them to
 //! it.
 
+use glam::DVec3;
+
 use crate::geom::{ceil_i64, floor_i64, greater, lesser};
 
 /// One edge of a polygon as a bound on a cell row's columns: `p + q·(y +
@@ -15,6 +17,17 @@ pub type Bound = (f64, f64, f64);
 /// A row's first and last cell inside a polygon (the first above the last
 /// where none is).
 pub type Span = (i32, i32);
+
+/// Where a box's eight corners lie seen from the eye (view space, the
+/// eye at the origin looking along +z): their least depth, and the least
+/// and greatest of their `x/z` and `y/z` (tangents of the angle off the
+/// view direction).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Outline {
+    pub z_min: f64,
+    pub x: (f64, f64),
+    pub y: (f64, f64),
+}
 
 /// Which implementation of the loops to run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -117,6 +130,19 @@ impl Kernel {
             _ => least_scalar(cells, stride, width, rows),
         }
     }
+
+    /// The [`Outline`] of the corners `base + {0, ex} + {0, ey} + {0, ez}`
+    /// (each summed in that order), or `None` when one of them does not
+    /// lie beyond depth `z_floor` (a NaN depth among them). A NaN tangent
+    /// is left out of the bounds (a finite box never makes one).
+    pub fn outline(self, base: DVec3, edges: [DVec3; 3], z_floor: f64) -> Option<Outline> {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `raise`.
+            Kernel::Avx2 => unsafe { avx2::outline(base, edges, z_floor) },
+            _ => outline_scalar(base, edges, z_floor),
+        }
+    }
 }
 
 /// A kernel's `raise` as a type, so that a loop around it can be compiled
@@ -211,6 +237,31 @@ fn spans_scalar(
         let (first, last) = (lesser(first, last_col + 1.0), greater(last, -1.0));
         *out = (ceil_i64(first) as i32, floor_i64(last) as i32);
     }
+}
+
+/// `outline`, one corner at a time.
+fn outline_scalar(base: DVec3, [ex, ey, ez]: [DVec3; 3], z_floor: f64) -> Option<Outline> {
+    let (b1, b2) = (base + ex, base + ey);
+    let b3 = b1 + ey;
+    let corners = [base, b1, b2, b3, base + ez, b1 + ez, b2 + ez, b3 + ez];
+    let (inf, neg) = (f64::INFINITY, f64::NEG_INFINITY);
+    let (mut z_min, mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (inf, inf, neg, inf, neg);
+    for v in corners {
+        // Also NaN: not beyond.
+        if v.z.partial_cmp(&z_floor) != Some(std::cmp::Ordering::Greater) {
+            return None;
+        }
+        z_min = lesser(z_min, v.z);
+        let inv = 1.0 / v.z;
+        let (x, y) = (v.x * inv, v.y * inv);
+        (x_lo, x_hi) = (lesser(x_lo, x), greater(x_hi, x));
+        (y_lo, y_hi) = (lesser(y_lo, y), greater(y_hi, y));
+    }
+    Some(Outline {
+        z_min,
+        x: (x_lo, x_hi),
+        y: (y_lo, y_hi),
+    })
 }
 
 fn least_scalar(cells: &[f32], stride: usize, width: usize, rows: usize) -> f32 {
@@ -388,6 +439,58 @@ mod avx2 {
     }
 
     /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn outline(
+        base: glam::DVec3,
+        [ex, ey, ez]: [glam::DVec3; 3],
+        z_floor: f64,
+    ) -> Option<super::Outline> {
+        // One coordinate of the eight corners in two vectors: lanes base,
+        // +ex, +ey, +ex+ey, then each +ez; the scalar loop's sums in its
+        // order (adding 0 changes no value but a zero's sign).
+        let corners = |b: f64, x: f64, y: f64, z: f64| {
+            let near = _mm256_add_pd(_mm256_set1_pd(b), _mm256_setr_pd(0.0, x, 0.0, x));
+            let near = _mm256_add_pd(near, _mm256_setr_pd(0.0, 0.0, y, y));
+            (near, _mm256_add_pd(near, _mm256_set1_pd(z)))
+        };
+        let (z0, z1) = corners(base.z, ex.z, ey.z, ez.z);
+        let floor = _mm256_set1_pd(z_floor);
+        // Ordered: a NaN depth is not beyond, as in the scalar loop.
+        let beyond = _mm256_and_pd(
+            _mm256_cmp_pd::<_CMP_GT_OQ>(z0, floor),
+            _mm256_cmp_pd::<_CMP_GT_OQ>(z1, floor),
+        );
+        if _mm256_movemask_pd(beyond) != 0b1111 {
+            return None;
+        }
+        let (x0, x1) = corners(base.x, ex.x, ey.x, ez.x);
+        let (y0, y1) = corners(base.y, ex.y, ey.y, ez.y);
+        let one = _mm256_set1_pd(1.0);
+        let (inv0, inv1) = (_mm256_div_pd(one, z0), _mm256_div_pd(one, z1));
+        let (x0, x1) = (_mm256_mul_pd(x0, inv0), _mm256_mul_pd(x1, inv1));
+        let (y0, y1) = (_mm256_mul_pd(y0, inv0), _mm256_mul_pd(y1, inv1));
+        // `min(v, acc)` is `acc` unless `v` is smaller (a NaN `v` never
+        // is), as `lesser(acc, v)` is; likewise `max`: each new value
+        // first, from a start of ±∞.
+        let least = |a: __m256d, b: __m256d| {
+            let m = _mm256_min_pd(b, _mm256_min_pd(a, _mm256_set1_pd(f64::INFINITY)));
+            let m = _mm_min_pd(_mm256_extractf128_pd::<1>(m), _mm256_castpd256_pd128(m));
+            _mm_cvtsd_f64(_mm_min_pd(_mm_unpackhi_pd(m, m), m))
+        };
+        let most = |a: __m256d, b: __m256d| {
+            let m = _mm256_max_pd(b, _mm256_max_pd(a, _mm256_set1_pd(f64::NEG_INFINITY)));
+            let m = _mm_max_pd(_mm256_extractf128_pd::<1>(m), _mm256_castpd256_pd128(m));
+            _mm_cvtsd_f64(_mm_max_pd(_mm_unpackhi_pd(m, m), m))
+        };
+        Some(super::Outline {
+            z_min: least(z0, z1),
+            x: (least(x0, x1), most(x0, x1)),
+            y: (least(y0, y1), most(y0, y1)),
+        })
+    }
+
+    /// # Safety
     /// The CPU must have AVX2, and `cells` hold `(rows - 1) * stride + 8`
     /// values.
     #[target_feature(enable = "avx2")]
@@ -476,6 +579,43 @@ mod tests {
             let plain = (0..rows).all(|r| (x0..=x1).all(|x| cells[r * 12 + x] > w));
             prop_assert_eq!(Kernel::Scalar.above(&cells, 12, rows, (x0, x1), w), plain);
             prop_assert_eq!(Kernel::detect().above(&cells, 12, rows, (x0, x1), w), plain);
+        }
+
+        /// Both kernels find the same outline of a box, bit for bit (a
+        /// zero's sign aside), and it holds every corner; a corner not
+        /// beyond the floor (or at a NaN depth) gives none.
+        #[test]
+        fn outlines_agree(
+            base in (-1e3f64..1e3, -1e3f64..1e3, -1e3f64..1e3),
+            edges in proptest::collection::vec((-50.0f64..50.0, -50.0f64..50.0, -50.0f64..50.0), 3),
+            floor in prop_oneof![Just(0.1f64), -1e3f64..1e3, Just(f64::NAN)],
+        ) {
+            let v = |(x, y, z): (f64, f64, f64)| DVec3::new(x, y, z);
+            let (base, edges) = (v(base), [v(edges[0]), v(edges[1]), v(edges[2])]);
+            let plain = Kernel::Scalar.outline(base, edges, floor);
+            let fast = Kernel::detect().outline(base, edges, floor);
+            let same = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a == 0.0 && b == 0.0);
+            match (plain, fast) {
+                (None, None) => {}
+                (Some(a), Some(b)) => {
+                    prop_assert!(same(a.z_min, b.z_min) && same(a.x.0, b.x.0) && same(a.x.1, b.x.1));
+                    prop_assert!(same(a.y.0, b.y.0) && same(a.y.1, b.y.1), "{:?} {:?}", a, b);
+                }
+                (a, b) => prop_assert!(false, "{:?} against {:?}", a, b),
+            }
+            let corners = (0..8).map(|k| {
+                let pick = |bit: usize, e: DVec3| if k & bit != 0 { e } else { DVec3::ZERO };
+                base + pick(1, edges[0]) + pick(2, edges[1]) + pick(4, edges[2])
+            });
+            let beyond = corners.clone().all(|c| c.z > floor);
+            prop_assert_eq!(plain.is_some(), beyond);
+            if let Some(o) = plain {
+                for c in corners {
+                    // As the kernels divide: by a reciprocal.
+                    let (x, y) = (c.x * (1.0 / c.z), c.y * (1.0 / c.z));
+                    prop_assert!(o.z_min <= c.z && o.x.0 <= x && x <= o.x.1 && o.y.0 <= y && y <= o.y.1);
+                }
+            }
         }
 
         /// Both kernels write the same bits and find the same least value.

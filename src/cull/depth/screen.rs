@@ -17,7 +17,7 @@ use std::str::FromStr;
 use glam::DVec3;
 
 use super::buffer::{CellRect, DepthBuffer};
-use super::kernel::{Bound, Span};
+use super::kernel::{Bound, Kernel, Outline, Span};
 use crate::cull::View;
 use crate::geom::{Aabb, Plane, ceil_i64, floor_i64, greater, lesser};
 
@@ -157,12 +157,15 @@ pub struct Screen {
     ray: f64,
     /// Absolute rounding of a view-space position (scene units).
     slack: f64,
+    /// The loops [`Screen::footprint`] runs.
+    kernel: Kernel,
 }
 
 impl Screen {
     /// `view` with cells of `cell` pixels; `scene_radius` bounds the
-    /// scene-local coordinates of everything drawn or tested.
-    pub fn new(view: &View, cell: CellSize, scene_radius: f64) -> Screen {
+    /// scene-local coordinates of everything drawn or tested; `kernel`
+    /// runs its loops (the buffer's, where it has one).
+    pub fn new(view: &View, cell: CellSize, scene_radius: f64, kernel: Kernel) -> Screen {
         let CellSize { across, down } = cell;
         debug_assert!(across > 0 && down > 0, "cells of {cell} pixels");
         let camera = view.camera();
@@ -185,6 +188,7 @@ impl Screen {
             rows: (h as usize).div_ceil(down),
             ray: (tx * tx + ty * ty + 1.0).sqrt(),
             slack: TRANSFORM_SLACK * (view.eye().length() + scene_radius),
+            kernel,
         }
     }
 
@@ -518,24 +522,17 @@ impl Screen {
         let axis =
             |len: f64, a: usize| DVec3::new(self.right[a], self.up[a], self.forward[a]) * len;
         let (ex, ey, ez) = (axis(e.x, 0), axis(e.y, 1), axis(e.z, 2));
-        let mut z_min = f64::INFINITY;
-        let (mut x_lo, mut x_hi, mut y_lo, mut y_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-        // Each corner summed in the order x, y, z edge, as a loop over the
-        // eight with a branch per edge would.
-        let (b1, b2) = (base + ex, base + ey);
-        let b3 = b1 + ey;
-        let corners = [base, b1, b2, b3, base + ez, b1 + ez, b2 + ez, b3 + ez];
-        for v in corners {
-            // Also NaN: not decidable.
-            if v.z.partial_cmp(&(self.near + self.slack)) != Some(std::cmp::Ordering::Greater) {
-                return Footprint::Near;
-            }
-            z_min = lesser(z_min, v.z);
-            let inv = 1.0 / v.z;
-            let (x, y) = (v.x * inv, v.y * inv);
-            (x_lo, x_hi) = (lesser(x_lo, x), greater(x_hi, x));
-            (y_lo, y_hi) = (lesser(y_lo, y), greater(y_hi, y));
-        }
+        let Some(Outline {
+            z_min,
+            x: (x_lo, x_hi),
+            y: (y_lo, y_hi),
+        }) = self
+            .kernel
+            .outline(base, [ex, ey, ez], self.near + self.slack)
+        else {
+            // Also a NaN depth: not decidable.
+            return Footprint::Near;
+        };
         // The corners' rounding, moved to the screen: the slack over the
         // nearest depth in tangent units, more for corners off to the
         // side; then into pixels, with 1e-9 of them for the division.
@@ -595,7 +592,12 @@ mod tests {
             viewport: [64, 48],
             ..Camera::default()
         };
-        Screen::new(&View::new(camera, &scene).expect("a view"), cells, 100.0)
+        Screen::new(
+            &View::new(camera, &scene).expect("a view"),
+            cells,
+            100.0,
+            Kernel::detect(),
+        )
     }
 
     /// The square `[−h, h]²` of the plane `z = 0`.

@@ -653,7 +653,7 @@ impl CullMethod for RasterCulling {
         out: &mut VisibleSet,
         occludees: &mut Occludees,
     ) -> Result<CullCounters, CullError> {
-        let screen = Screen::new(view, CellSize::square(state.cell), self.radius);
+        let screen = Screen::new(view, CellSize::square(state.cell), self.radius, state.kernel);
         let mut canvas = state.canvas.take().unwrap_or_else(|| state.pool.take(state.kernel));
         canvas.begin(self.scene.objects().len(), screen.cells(), state);
         let canvas = state.canvas.insert(canvas);
