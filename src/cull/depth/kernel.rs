@@ -611,10 +611,22 @@ mod tests {
             prop_assert_eq!(plain.is_some(), beyond);
             if let Some(o) = plain {
                 for c in corners {
-                    // As the kernels divide: by a reciprocal.
+                    // As the kernels divide: by a reciprocal. (A corner at
+                    // depth 0, past a floor below it, has NaN tangents.)
                     let (x, y) = (c.x * (1.0 / c.z), c.y * (1.0 / c.z));
-                    prop_assert!(o.z_min <= c.z && o.x.0 <= x && x <= o.x.1 && o.y.0 <= y && y <= o.y.1);
+                    let within = |t: f64, (lo, hi): (f64, f64)| t.is_nan() || (lo <= t && t <= hi);
+                    prop_assert!(o.z_min <= c.z && within(x, o.x) && within(y, o.y));
                 }
+            }
+        }
+
+        /// A box shrunk to the eye, past a floor below it: its tangents
+        /// are all NaN (0/0), and left out.
+        #[test]
+        fn an_outline_leaves_nan_tangents_out(floor in -1e3f64..-1e-3) {
+            for kernel in [Kernel::Scalar, Kernel::detect()] {
+                let o = kernel.outline(DVec3::ZERO, [DVec3::ZERO; 3], floor);
+                prop_assert_eq!(o.map(|o| (o.z_min, o.x, o.y)), Some((0.0, (f64::INFINITY, f64::NEG_INFINITY), (f64::INFINITY, f64::NEG_INFINITY))));
             }
         }
 
