@@ -253,7 +253,7 @@ pub struct DdoCulling {
     /// Per large solid and rectangle, the sides of its plane an object
     /// reaches into: a rectangle with nothing beyond it from the eye (the
     /// far half of a closed body with nothing outside it) is not drawn
-    /// (none for a part: its [`Shown`] hold its own).
+    /// (none for a part: its [`Shown`] records hold their own).
     beyond: Vec<Vec<Beyond>>,
     /// Per part's solid, its rectangles' [`Shown`], largest first: a part
     /// draws the one a view shows largest (none for a large solid).
@@ -395,6 +395,7 @@ struct Shown {
 impl Shown {
     /// Of each of `rects` (with its [`Beyond`]), the largest first.
     fn largest_first(rects: &[SolidRect], beyond: &[Beyond]) -> Vec<Shown> {
+        debug_assert_eq!(rects.len(), beyond.len(), "a Beyond per rectangle");
         let mut shown: Vec<Shown> = rects
             .iter()
             .zip(beyond)

@@ -134,7 +134,8 @@ impl Kernel {
     /// The [`Outline`] of the corners `base + {0, ex} + {0, ey} + {0, ez}`
     /// (each summed in that order), or `None` when one of them does not
     /// lie beyond depth `z_floor` (a NaN depth among them). A NaN tangent
-    /// is left out of the bounds (a finite box never makes one).
+    /// (a corner at the eye itself, 0/0, past a floor below zero) is left
+    /// out of the bounds; beyond a floor above zero none arises.
     pub fn outline(self, base: DVec3, edges: [DVec3; 3], z_floor: f64) -> Option<Outline> {
         match self {
             #[cfg(target_arch = "x86_64")]
@@ -277,6 +278,8 @@ fn least_scalar(cells: &[f32], stride: usize, width: usize, rows: usize) -> f32 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use std::arch::x86_64::*;
+
+    use glam::DVec3;
 
     /// `base + (k + lane)·step` in each of eight lanes: the values `raise`
     /// writes and `rises` compares, made in one place so that they are
@@ -442,16 +445,15 @@ mod avx2 {
     /// The CPU must have AVX2.
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn outline(
-        base: glam::DVec3,
-        [ex, ey, ez]: [glam::DVec3; 3],
+        base: DVec3,
+        [ex, ey, ez]: [DVec3; 3],
         z_floor: f64,
     ) -> Option<super::Outline> {
         // One coordinate of the eight corners in two vectors: lanes base,
-        // +ex, +ey, +ex+ey, then each +ez; the scalar loop's sums in its
-        // order (adding 0 changes no value but a zero's sign).
+        // +ex, +ey, +ex+ey, then each +ez, summed as the scalar loop sums
+        // them (so a −0 stays −0 too).
         let corners = |b: f64, x: f64, y: f64, z: f64| {
-            let near = _mm256_add_pd(_mm256_set1_pd(b), _mm256_setr_pd(0.0, x, 0.0, x));
-            let near = _mm256_add_pd(near, _mm256_setr_pd(0.0, 0.0, y, y));
+            let near = _mm256_setr_pd(b, b + x, b + y, (b + x) + y);
             (near, _mm256_add_pd(near, _mm256_set1_pd(z)))
         };
         let (z0, z1) = corners(base.z, ex.z, ey.z, ez.z);
@@ -612,7 +614,8 @@ mod tests {
             if let Some(o) = plain {
                 for c in corners {
                     // As the kernels divide: by a reciprocal. (A corner at
-                    // depth 0, past a floor below it, has NaN tangents.)
+                    // the eye itself, past a floor below zero, has NaN
+                    // tangents, 0/0; elsewhere at depth 0 infinite ones.)
                     let (x, y) = (c.x * (1.0 / c.z), c.y * (1.0 / c.z));
                     let within = |t: f64, (lo, hi): (f64, f64)| t.is_nan() || (lo <= t && t <= hi);
                     prop_assert!(o.z_min <= c.z && within(x, o.x) && within(y, o.y));
@@ -621,12 +624,16 @@ mod tests {
         }
 
         /// A box shrunk to the eye, past a floor below it: its tangents
-        /// are all NaN (0/0), and left out.
+        /// are all NaN (0/0), and left out; a corner exactly at the floor
+        /// is not beyond it.
         #[test]
         fn an_outline_leaves_nan_tangents_out(floor in -1e3f64..-1e-3) {
             for kernel in [Kernel::Scalar, Kernel::detect()] {
                 let o = kernel.outline(DVec3::ZERO, [DVec3::ZERO; 3], floor);
                 prop_assert_eq!(o.map(|o| (o.z_min, o.x, o.y)), Some((0.0, (f64::INFINITY, f64::NEG_INFINITY), (f64::INFINITY, f64::NEG_INFINITY))));
+                let at = DVec3::new(0.3, -0.2, -floor);
+                prop_assert_eq!(kernel.outline(at, [DVec3::X, DVec3::Y, DVec3::Z], -floor), None);
+                prop_assert!(kernel.outline(at, [DVec3::X, DVec3::Y, DVec3::Z], -floor * 0.999).is_some());
             }
         }
 
